@@ -1,0 +1,309 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Kinematics of the Kraft Master hand controller (NASA TM-104124, Williams 1991).
+
+SI units throughout: metres, radians, newtons, newton-metres. Joint angles are the
+DH angles th1..th6 of the paper; frames {0} (shoulder) and {6} (wrist). The closed
+forms use the factored K terms of Appendix B, with the OCR errors mended
+(see shared/spec/kinematics.md). Every function takes one joint vector (6,) or a
+batch (N, 6).
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+JOINT_NAMES = (
+    'shoulder_yaw', 'shoulder_pitch', 'elbow_pitch', 'wrist_yaw', 'wrist_pitch', 'wrist_roll')
+ARMS = ('right', 'left')
+DRIVEN_JOINTS = 5
+BATCH_CHUNK = 4096
+
+
+class LinkLengths(NamedTuple):
+    """Link lengths L1..L4 in metres; L3 is given positive and negated for the left arm."""
+
+    l1: float
+    l2: float
+    l3: float
+    l4: float
+
+
+NOMINAL_LENGTHS = LinkLengths(l1=0.178, l2=0.203, l3=0.133, l4=0.084)
+
+# Table II, degrees. The elbow's upper bound falls from -35 deg at th2 = 0 to -85 deg at
+# th2 = 120 deg; linear interpolation between the two is an assumption, not the paper's.
+_LIMITS_DEG = np.array([
+    [-90.0, 90.0],
+    [0.0, 120.0],
+    [-135.0, -35.0],
+    [-55.0, 55.0],
+    [-20.0, 50.0],
+    [-45.0, 45.0],
+])
+JOINT_LIMITS = np.radians(_LIMITS_DEG)
+_ELBOW_UPPER_AT_TH2_MAX = math.radians(-85.0)
+
+
+def check_arm(arm):
+    """Return `arm` if it names a known arm, else raise ValueError."""
+    if arm not in ARMS:
+        raise ValueError(f"unknown arm {arm!r}: expected 'right' or 'left'")
+    return arm
+
+
+def _signed_lengths(arm, lengths):
+    l1, l2, l3, l4 = NOMINAL_LENGTHS if lengths is None else lengths
+    return l1, l2, (l3 if check_arm(arm) == 'right' else -l3), l4
+
+
+def _factored_terms(trig, arm, lengths):
+    """Appendix B terms; works elementwise on floats or on numpy arrays alike."""
+    c1, s1, c2, s2, c23, s23, c4, s4, c5, s5, c6, s6 = trig
+    l1, l2, l3, l4 = _signed_lengths(arm, lengths)
+    ki = c1 * c23
+    kj = s1 * c23
+    km = s23 * c5
+    kn = s23 * s5
+    k0 = s23 * s4
+    k1 = s1 * s4 - ki * c4
+    k2 = s1 * c4 + ki * s4
+    k3 = -c1 * s4 - kj * c4
+    k4 = -c1 * c4 + kj * s4
+    k5 = c23 * s5 + km * c4
+    k6 = c23 * c5 - kn * c4
+    k7 = l2 * s23 + l4 * c23
+    k8 = l2 * c23 - l4 * s23
+    k9 = k7 + l1 * s2
+    k10 = k8 + l1 * c2
+    ka = k1 * s5 - km * c1
+    kb = k3 * s5 - km * s1
+    kc = -k1 * c5 - kn * c1
+    kd = -k3 * c5 - kn * s1
+    ke = k10 * s1 - l3 * c1
+    kf = k10 * c1 + l3 * s1
+    rotation_position = (
+        (k2 * s6 + ka * c6, -ka * s6 + k2 * c6, kc, kf),
+        (k4 * s6 + kb * c6, -kb * s6 + k4 * c6, kd, ke),
+        (k0 * s6 + k6 * c6, -k6 * s6 + k0 * c6, k5, k9),
+    )
+    jacobian_rows = (
+        (-ke, -k9 * c1, -k7 * c1, 0.0, 0.0, 0.0),
+        (kf, -k9 * s1, -k7 * s1, 0.0, 0.0, 0.0),
+        (0.0, k10, k8, 0.0, 0.0, 0.0),
+        (0.0, s1, s1, -c1 * s23, k2, kc),
+        (0.0, -c1, -c1, -s1 * s23, k4, kd),
+        (1.0, 0.0, 0.0, c23, k0, k5),
+    )
+    return rotation_position, jacobian_rows
+
+
+def _scalar_trig(theta):
+    th1, th2, th3, th4, th5, th6 = (float(t) for t in theta)
+    th23 = th2 + th3
+    return (math.cos(th1), math.sin(th1), math.cos(th2), math.sin(th2),
+            math.cos(th23), math.sin(th23), math.cos(th4), math.sin(th4),
+            math.cos(th5), math.sin(th5), math.cos(th6), math.sin(th6))
+
+
+def _batch_trig(theta):
+    angles = np.column_stack((theta[:, :2], theta[:, 1] + theta[:, 2], theta[:, 3:]))
+    cos, sin = np.cos(angles), np.sin(angles)
+    return tuple(x for i in range(6) for x in (cos[:, i], sin[:, i]))
+
+
+_HOMOGENEOUS_ROW = (0.0, 0.0, 0.0, 1.0)
+
+
+def _fill(out, rows):
+    for i, row in enumerate(rows):
+        for j, value in enumerate(row):
+            out[:, i, j] = value
+
+
+def _batch(theta, arm, lengths, want_pose, want_jacobian):
+    n = theta.shape[0]
+    poses = np.empty((n, 4, 4)) if want_pose else None
+    jacobians = np.empty((n, 6, 6)) if want_jacobian else None
+    for start in range(0, n, BATCH_CHUNK):
+        chunk = slice(start, start + BATCH_CHUNK)
+        rotation_position, jacobian_rows = _factored_terms(
+            _batch_trig(theta[chunk]), arm, lengths)
+        if want_pose:
+            _fill(poses[chunk], rotation_position + (_HOMOGENEOUS_ROW,))
+        if want_jacobian:
+            _fill(jacobians[chunk], jacobian_rows)
+    return poses, jacobians
+
+
+def _as_joint_array(theta):
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape[-1:] != (6,) or theta.ndim not in (1, 2):
+        raise ValueError(f'joint angles must have shape (6,) or (N, 6), got {theta.shape}')
+    return theta
+
+
+def forward_and_jacobian(theta, arm='right', lengths=None):
+    """
+    Return (0T6, 0J): the wrist pose and the Jacobian, sharing the factored terms.
+
+    theta (6,) gives a 4x4 and a 6x6 array; theta (N, 6) gives (N, 4, 4) and (N, 6, 6).
+    The Jacobian rows are (vx, vy, vz, wx, wy, wz) of the origin of {6} in {0}.
+    """
+    theta = _as_joint_array(theta)
+    if theta.ndim == 2:
+        return _batch(theta, arm, lengths, True, True)
+    rotation_position, jacobian_rows = _factored_terms(_scalar_trig(theta), arm, lengths)
+    return np.array(rotation_position + (_HOMOGENEOUS_ROW,)), np.array(jacobian_rows)
+
+
+def forward(theta, arm='right', lengths=None):
+    """Return 0T6, the homogeneous transform of the wrist frame {6} in {0} (metres)."""
+    theta = _as_joint_array(theta)
+    if theta.ndim == 2:
+        return _batch(theta, arm, lengths, True, False)[0]
+    rotation_position, _ = _factored_terms(_scalar_trig(theta), arm, lengths)
+    return np.array(rotation_position + (_HOMOGENEOUS_ROW,))
+
+
+def jacobian(theta, arm='right', lengths=None):
+    """Return 0J, the 6x6 Jacobian of the origin of {6} expressed in {0}."""
+    theta = _as_joint_array(theta)
+    if theta.ndim == 2:
+        return _batch(theta, arm, lengths, False, True)[1]
+    _, jacobian_rows = _factored_terms(_scalar_trig(theta), arm, lengths)
+    return np.array(jacobian_rows)
+
+
+def dh_transform(alpha, a, d, theta):
+    """Craig's modified DH link transform (Eq. 1) as a 4x4 array."""
+    ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
+    return np.array([
+        [ct, -st, 0.0, a],
+        [st * ca, ct * ca, -sa, -d * sa],
+        [st * sa, ct * sa, ca, d * ca],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
+
+
+def dh_table(theta, arm='right', lengths=None):
+    """Rows (alpha_{i-1}, a_{i-1}, d_i, theta_i) of the DH table for one joint vector."""
+    l1, l2, l3, l4 = _signed_lengths(arm, lengths)
+    th1, th2, th3, th4, th5, th6 = (float(t) for t in theta)
+    half_pi = math.pi / 2
+    return (
+        (0.0, 0.0, 0.0, th1),
+        (half_pi, 0.0, 0.0, th2),
+        (0.0, l1, l3, th3),
+        (-half_pi, l2, l4, th4),
+        (half_pi, 0.0, 0.0, th5 + half_pi),
+        (half_pi, 0.0, 0.0, th6),
+    )
+
+
+def joint_torques(theta, wrench, arm='right', lengths=None):
+    """
+    Return the six joint torques 0J^T F in N*m (Eq. 15).
+
+    wrench is (fx, fy, fz, mx, my, mz) in {0}, acting at the origin of {6}, in N and N*m.
+    Accepts (6,) or batches (N, 6) of both.
+    """
+    jac = jacobian(theta, arm, lengths)
+    return np.einsum('...ji,...j->...i', jac, np.asarray(wrench, dtype=float))
+
+
+def actuator_torques(joint_tau):
+    """Map joint torques to actuator torques: the elbow motor drives q3 = th2 + th3."""
+    tau = np.array(joint_tau, dtype=float)
+    tau[..., 1] = tau[..., 1] - tau[..., 2]
+    return tau
+
+
+def joint_torques_from_actuator(actuator_tau):
+    """Inverse of actuator_torques: tau2 = tau_q2 + tau_q3, tau3 = tau_q3."""
+    tau = np.array(actuator_tau, dtype=float)
+    tau[..., 1] = tau[..., 1] + tau[..., 2]
+    return tau
+
+
+def joint_limits(theta2=None):
+    """
+    Return (lower, upper) joint limits in radians, each of shape (6,).
+
+    The elbow's upper bound depends on th2 (the four-bar coupling); with theta2 None the
+    widest range is given.
+    """
+    lower, upper = JOINT_LIMITS[:, 0].copy(), JOINT_LIMITS[:, 1].copy()
+    if theta2 is not None:
+        span_fraction = np.clip(theta2 / JOINT_LIMITS[1, 1], 0.0, 1.0)
+        upper[2] = upper[2] + span_fraction * (_ELBOW_UPPER_AT_TH2_MAX - upper[2])
+    return lower, upper
+
+
+def limit_violations(theta, tolerance=1e-9):
+    """Return one message per joint of `theta` (6,) outside its Table II range; [] if none."""
+    theta = _as_joint_array(theta)
+    lower, upper = joint_limits(theta[1])
+    messages = []
+    for name, value, low, high in zip(JOINT_NAMES, theta, lower, upper):
+        if not low - tolerance <= value <= high + tolerance:
+            messages.append(
+                f'{name} at {math.degrees(value):.2f} deg is outside '
+                f'[{math.degrees(low):.2f}, {math.degrees(high):.2f}] deg')
+    return messages
+
+
+def rotation_to_euler_zyx(rotation):
+    """Z-Y-X Euler angles (RZ, RY, RX) of a rotation matrix (Craig; RY in [-pi/2, pi/2])."""
+    r = rotation
+    ry = math.atan2(-r[2][0], math.hypot(r[0][0], r[1][0]))
+    rz = math.atan2(r[1][0], r[0][0])
+    rx = math.atan2(r[2][1], r[2][2])
+    return rz, ry, rx
+
+
+def pose_difference(t_current, t_reference):
+    """
+    Section 4 difference of two poses of {A}: return (dp, w), both (3,) in {A}.
+
+    dp = P_current - P_reference; w is the angular velocity that turns the reference
+    orientation into the current one in unit time (Z-Y-X Euler rates, Eq. 8-10).
+    """
+    t_current = np.asarray(t_current, dtype=float)
+    t_reference = np.asarray(t_reference, dtype=float)
+    dp = t_current[:3, 3] - t_reference[:3, 3]
+    r_ref = t_reference[:3, :3]
+    rz, ry, rx = rotation_to_euler_zyx(r_ref.T @ t_current[:3, :3])
+    cy, sy, cx, sx = math.cos(ry), math.sin(ry), math.cos(rx), math.sin(rx)
+    w_reference = np.array([
+        -rz * sy + rx,
+        rz * cy * sx + ry * cx,
+        rz * cy * cx - ry * sx,
+    ])
+    return dp, r_ref @ w_reference
+
+
+def rotation_to_quaternion(rotation):
+    """Return the unit quaternion (x, y, z, w) of a rotation matrix, with w >= 0."""
+    r = rotation
+    r00, r01, r02 = r[0][0], r[0][1], r[0][2]
+    r10, r11, r12 = r[1][0], r[1][1], r[1][2]
+    r20, r21, r22 = r[2][0], r[2][1], r[2][2]
+    trace = r00 + r11 + r22
+    if trace > 0.0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        x, y, z, w = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        x, y, z, w = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        x, y, z, w = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        x, y, z, w = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    return x / norm, y / norm, z / norm, w / norm

@@ -1,0 +1,31 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Install the kraft_master_driver ament_python package."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'kraft_master_driver'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'benchmarks']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML'],
+    zip_safe=True,
+    maintainer='kraft_master_driver maintainers',
+    maintainer_email='maintainers@kraft-master-driver.org',
+    description='ROS 2 driver for the Kraft Master force-reflecting hand controller',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'kraft_master_demo = kraft_master_driver.demo:main',
+        ],
+    },
+)
