@@ -1,0 +1,417 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Force reflection and rate commands: from a task wrench to the five torques sent to the device.
+
+Pure logic, no ROS. The node's loop thread calls ForceReflection.compute() once per cycle; the
+ROS executor thread calls submit() for each wrench and configure() for parameter changes. Each
+hands over one immutable object in one assignment, so the hot path takes no lock.
+
+Zero torque is the answer to every doubt: force output disabled, no wrench yet, a stale or
+rejected wrench, or a non-finite result all give exactly zero torques, with a state saying why.
+"""
+import math
+import numbers
+import operator
+import threading
+from functools import partial
+from typing import NamedTuple
+
+import numpy as np
+
+from kraft_master_driver import kinematics
+
+WRIST_FRAME, BASE_FRAME = 'wrist', 'base'
+FRAMES = (BASE_FRAME, WRIST_FRAME)
+COUPLINGS = ('actuator', 'joint')
+
+DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE = (
+    'disabled', 'no_wrench', 'stale', 'rejected', 'active')
+STATES = (DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE)
+
+REJECTION_REASONS = (
+    'malformed', 'non_finite', 'unknown_frame', 'bad_timestamp', 'force_limit', 'moment_limit')
+
+DRIVEN_AXES = kinematics.DRIVEN_JOINTS
+MAX_WRENCH_TIMEOUT = 5.0
+DEFAULT_TORQUE_LIMITS = (2.0,) * DRIVEN_AXES
+
+
+class WrenchInput(NamedTuple):
+    """
+    One accepted task wrench.
+
+    wrench: (fx, fy, fz, mx, my, mz) in N and N*m, acting at the origin of the wrist {6};
+    frame: BASE_FRAME ({0}) or WRIST_FRAME ({6}) for the axes it is expressed in;
+    received_ns: time.monotonic_ns() at receipt; tag: an opaque id passed through.
+    """
+
+    wrench: tuple
+    frame: str
+    received_ns: int
+    tag: object = None
+
+
+class Rejection(NamedTuple):
+    """The last input was rejected; it stands in place of a wrench until a valid one arrives."""
+
+    reason: str
+    tag: object = None
+
+
+class TorqueOutput(NamedTuple):
+    """
+    The result of one cycle.
+
+    actuator: 5 torques in N*m, axes 1..5, the exact values to send; joint: the joint torques
+    th1..th6 they amount to (th6 = 0); state: one of STATES; saturated: the torques were scaled
+    down to respect torque_limits; tag: the tag of the wrench used, or None.
+    """
+
+    actuator: tuple
+    joint: tuple
+    state: str
+    saturated: bool
+    tag: object
+
+
+class Settings(NamedTuple):
+    """ForceReflection parameters (SI units); change them with ForceReflection.configure()."""
+
+    enabled: bool = False
+    force_scale: float = 1.0
+    torque_limits: tuple = DEFAULT_TORQUE_LIMITS
+    coupling: str = 'actuator'
+    wrench_timeout: float = 0.05
+    max_force: float = 200.0
+    max_moment: float = 20.0
+    centre_stiffness: tuple = (0.0, 0.0)
+    centre_damping: tuple = (0.0, 0.0)
+
+
+class _HotPath(NamedTuple):
+    """Settings plus what compute() derives from them, swapped in one assignment."""
+
+    settings: Settings
+    timeout_ns: int
+    stiffness: tuple  # six gains (linear x3, angular x3), or None when all zero
+    damping: tuple
+
+
+_ZERO_OUTPUTS = {
+    state: TorqueOutput((0.0,) * DRIVEN_AXES, (0.0,) * 6, state, False, None)
+    for state in STATES if state != ACTIVE}
+
+
+def _interval(lower, upper, lower_open):
+    return f'{"(" if lower_open else "["}{lower:g}, {upper:g}{")" if upper == math.inf else "]"}'
+
+
+def _real(name, value, lower=0.0, upper=math.inf, lower_open=False):
+    """Return value as a float if it is a finite real number in range, else raise ValueError."""
+    if type(value) is not float:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise ValueError(f'{name} must be a number, got {value!r}')
+        value = float(value)
+    if not (math.isfinite(value) and lower <= value <= upper
+            and not (lower_open and value == lower)):
+        raise ValueError(
+            f'{name} must be finite and in {_interval(lower, upper, lower_open)}, got {value}')
+    return value
+
+
+def _reals(name, values, length, lower_open=False):
+    """Return a tuple of `length` finite non-negative floats (positive if lower_open)."""
+    if isinstance(values, (str, bytes)):
+        raise ValueError(f'{name} must be {length} numbers, got {values!r}')
+    try:
+        values = list(values)
+    except TypeError:
+        raise ValueError(f'{name} must be {length} numbers, got {values!r}') from None
+    if len(values) != length:
+        raise ValueError(f'{name} must be {length} numbers, got {len(values)}')
+    return tuple(_real(f'{name}[{i}]', v, lower_open=lower_open) for i, v in enumerate(values))
+
+
+def _flag(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f'{name} must be True or False, got {value!r}')
+    return bool(value)
+
+
+def _choice(name, choices, value):
+    if value not in choices:
+        raise ValueError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
+    return value
+
+
+_VALIDATORS = {
+    'enabled': partial(_flag, 'enabled'),
+    'force_scale': partial(_real, 'force_scale'),
+    'torque_limits': partial(_reals, 'torque_limits', length=DRIVEN_AXES, lower_open=True),
+    'coupling': partial(_choice, 'coupling', COUPLINGS),
+    'wrench_timeout': partial(_real, 'wrench_timeout', upper=MAX_WRENCH_TIMEOUT,
+                              lower_open=True),
+    'max_force': partial(_real, 'max_force'),
+    'max_moment': partial(_real, 'max_moment'),
+    'centre_stiffness': partial(_reals, 'centre_stiffness', length=2),
+    'centre_damping': partial(_reals, 'centre_damping', length=2),
+}
+
+
+def _six_gains(linear_angular):
+    linear, angular = linear_angular
+    return (linear,) * 3 + (angular,) * 3 if linear or angular else None
+
+
+def _setting(name):
+    return property(lambda self: getattr(self._hot.settings, name),
+                    doc=f'Current {name} (read-only; change it with configure()).')
+
+
+class ForceReflection:
+    """
+    Task wrench -> five device torques: frames, scaling, return-to-centre, saturation, watchdog.
+
+    Torques are J^T (force_scale * F + W_centre) with F in {0} at the wrist origin, th6 dropped
+    (no motor), mapped to the actuator form (elbow motor drives th2 + th3) when coupling is
+    'actuator', then scaled down as a whole vector if any axis exceeds its torque limit.
+
+    submit(), clear() and configure() may be called from any thread; compute() from one thread
+    only (it keeps the watchdog and saturation state).
+    """
+
+    force_scale = _setting('force_scale')
+    torque_limits = _setting('torque_limits')
+    coupling = _setting('coupling')
+    wrench_timeout = _setting('wrench_timeout')
+    max_force = _setting('max_force')
+    max_moment = _setting('max_moment')
+    centre_stiffness = _setting('centre_stiffness')
+    centre_damping = _setting('centre_damping')
+
+    def __init__(self, force_scale=1.0, torque_limits=DEFAULT_TORQUE_LIMITS, coupling='actuator',
+                 wrench_timeout=0.05, max_force=200.0, max_moment=20.0,
+                 centre_stiffness=(0.0, 0.0), centre_damping=(0.0, 0.0), enabled=False):
+        """
+        Validate the settings (ValueError naming the bad one); force output starts disabled.
+
+        force_scale (1), torque_limits (5 values, N*m, actuator axes 1..5, > 0),
+        coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]), max_force (N),
+        max_moment (N*m), centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad).
+        """
+        self._write_lock = threading.Lock()
+        self._hot = None
+        self._latest = None
+        self._tripped = None
+        self._was_saturated = False
+        self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
+        self._watchdog_trips = 0
+        self._saturation_events = 0
+        self._saturated_cycles = 0
+        self._non_finite_results = 0
+        self.configure(
+            enabled=enabled, force_scale=force_scale, torque_limits=torque_limits,
+            coupling=coupling, wrench_timeout=wrench_timeout, max_force=max_force,
+            max_moment=max_moment, centre_stiffness=centre_stiffness,
+            centre_damping=centre_damping)
+
+    @property
+    def settings(self):
+        """The current Settings (an immutable snapshot)."""
+        return self._hot.settings
+
+    @property
+    def enabled(self):
+        """Force output on (True) or off (False: zero torques)."""
+        return self._hot.settings.enabled
+
+    @enabled.setter
+    def enabled(self, value):
+        self.configure(enabled=value)
+
+    def configure(self, **changes):
+        """
+        Change settings at run time: all are validated first, then applied in one assignment.
+
+        Raise ValueError naming the setting on an unknown name or a bad value; then nothing
+        changes.
+        """
+        unknown = sorted(set(changes) - set(Settings._fields))
+        if unknown:
+            raise ValueError(
+                f'unknown setting(s) {", ".join(unknown)}; known: {", ".join(Settings._fields)}')
+        checked = {name: _VALIDATORS[name](value) for name, value in changes.items()}
+        with self._write_lock:
+            settings = (self._hot.settings if self._hot else Settings())._replace(**checked)
+            self._hot = _HotPath(settings, round(settings.wrench_timeout * 1e9),
+                                 _six_gains(settings.centre_stiffness),
+                                 _six_gains(settings.centre_damping))
+
+    def submit(self, wrench, frame, received_ns, tag=None):
+        """
+        Validate and store a task wrench; return (accepted, reason).
+
+        wrench: (fx, fy, fz, mx, my, mz), N and N*m; frame: BASE_FRAME or WRIST_FRAME;
+        received_ns: time.monotonic_ns() at receipt. A rejected wrench replaces the current one,
+        so torques are zero until a valid wrench arrives; reason then starts with the key of
+        `rejections` that was counted, and is '' for an accepted wrench.
+        """
+        key, detail, values = self._check(wrench, frame, received_ns)
+        if key is None:
+            self._latest = WrenchInput(values, frame, int(received_ns), tag)
+            return True, ''
+        self._latest = Rejection(key, tag)
+        self.rejections[key] += 1
+        return False, f'{key}: {detail}'
+
+    def _check(self, wrench, frame, received_ns):
+        """Return (rejection key or None, detail, the wrench as 6 floats)."""
+        try:
+            if isinstance(wrench, (str, bytes)):
+                raise TypeError
+            values = tuple(float(x) for x in wrench)
+        except (TypeError, ValueError):
+            return 'malformed', f'expected 6 numbers, got {wrench!r}', None
+        if len(values) != 6:
+            return 'malformed', f'expected 6 numbers, got {len(values)}', None
+        if not all(math.isfinite(x) for x in values):
+            return 'non_finite', f'wrench {values} is not finite', None
+        if frame not in FRAMES:
+            return 'unknown_frame', f'frame {frame!r} is not one of {", ".join(FRAMES)}', None
+        if isinstance(received_ns, bool) or not isinstance(received_ns, numbers.Integral):
+            return 'bad_timestamp', f'received_ns must be integer ns, got {received_ns!r}', None
+        settings = self._hot.settings
+        force, moment = math.hypot(*values[:3]), math.hypot(*values[3:])
+        if force > settings.max_force:
+            return 'force_limit', f'|f| = {force:g} N > max_force = {settings.max_force:g} N', None
+        if moment > settings.max_moment:
+            return ('moment_limit',
+                    f'|m| = {moment:g} N*m > max_moment = {settings.max_moment:g} N*m', None)
+        return None, '', values
+
+    def clear(self):
+        """Forget the wrench: torques are zero (state 'no_wrench') until the next submit()."""
+        self._latest = None
+
+    @property
+    def counters(self):
+        """A snapshot of the event counters, flat: name -> count."""
+        counters = {
+            'watchdog_trips': self._watchdog_trips,
+            'saturation_events': self._saturation_events,
+            'saturated_cycles': self._saturated_cycles,
+            'non_finite_results': self._non_finite_results,
+        }
+        counters.update({f'rejected_{key}': n for key, n in self.rejections.items()})
+        return counters
+
+    def _idle(self, state):
+        self._was_saturated = False
+        return _ZERO_OUTPUTS[state]
+
+    def compute(self, rotation, jacobian, now_ns, pose=None, centre=None,
+                cartesian_velocity=None):
+        """
+        Return the TorqueOutput for this cycle.
+
+        rotation: 0R6 (3x3), used for wrist-frame wrenches; jacobian: 0J (6x6);
+        now_ns: time.monotonic_ns(). pose and centre (4x4 0T6, metres) feed the return-to-centre
+        spring, cartesian_velocity (vx, vy, vz, wx, wy, wz of the wrist in {0}, i.e. 0J dtheta)
+        its damper; each acts only while its coefficients are non-zero and its inputs given.
+        """
+        hot = self._hot
+        settings = hot.settings
+        latest = self._latest
+        if not settings.enabled:
+            return self._idle(DISABLED)
+        if latest is None:
+            return self._idle(NO_WRENCH)
+        if type(latest) is Rejection:
+            return self._idle(REJECTED)
+        # A large negative age (receipt stamped in the future) is as doubtful as a large one.
+        if abs(now_ns - latest.received_ns) > hot.timeout_ns:
+            if latest is not self._tripped:
+                self._tripped = latest
+                self._watchdog_trips += 1
+            return self._idle(STALE)
+
+        scale = settings.force_scale
+        fx, fy, fz, mx, my, mz = latest.wrench
+        if latest.frame == WRIST_FRAME:
+            rows = np.asarray(rotation).tolist()
+            wrench = _rotate(rows, fx, fy, fz) + _rotate(rows, mx, my, mz)
+        else:
+            wrench = [fx, fy, fz, mx, my, mz]
+        wrench = [scale * x for x in wrench]
+        if hot.stiffness is not None and pose is not None and centre is not None:
+            dp, dw = kinematics.pose_difference(pose, centre)
+            wrench = _minus_product(wrench, hot.stiffness, dp.tolist() + dw.tolist())
+        if hot.damping is not None and cartesian_velocity is not None:
+            wrench = _minus_product(
+                wrench, hot.damping, np.asarray(cartesian_velocity, dtype=float).tolist())
+
+        # Plain floats: a few tolist() calls beat a chain of tiny numpy operations here.
+        columns = np.asarray(jacobian).T.tolist()
+        torques = [sum(map(operator.mul, column, wrench)) for column in columns[:DRIVEN_AXES]]
+        actuator_form = settings.coupling == 'actuator'
+        if actuator_form:
+            torques[1] -= torques[2]  # kinematics.actuator_torques, inlined
+        if not all(map(math.isfinite, torques)):
+            self._non_finite_results += 1
+            return self._idle(REJECTED)
+        limits = settings.torque_limits
+        saturated = any([abs(tau) > limit for tau, limit in zip(torques, limits)])
+        if saturated:
+            # One factor for the whole vector keeps its direction; the clamp only trims rounding.
+            peak = max([abs(tau) / limit for tau, limit in zip(torques, limits)])
+            torques = [min(max(tau / peak, -limit), limit) for tau, limit in zip(torques, limits)]
+            self._saturated_cycles += 1
+            if not self._was_saturated:
+                self._saturation_events += 1
+        self._was_saturated = saturated
+        t1, t2, t3, t4, t5 = torques
+        # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
+        joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)
+        return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, latest.tag)
+
+
+def _rotate(rows, x, y, z):
+    """Return R (x, y, z) as a list, R given as three row lists."""
+    return [r1 * x + r2 * y + r3 * z for r1, r2, r3 in rows]
+
+
+def _minus_product(wrench, gains, values):
+    """Return wrench - gains * values, elementwise over six floats."""
+    return [w - k * v for w, k, v in zip(wrench, gains, values)]
+
+
+def _outside_dead_band(vector, gain, dead_band):
+    """Return gain * vector with its length shrunk by dead_band (zero inside the band)."""
+    length = math.hypot(*vector)
+    if length <= dead_band:
+        return [0.0, 0.0, 0.0]
+    factor = gain * (1.0 - dead_band / length)
+    return [factor * x for x in vector]
+
+
+def rate_command(pose, centre, linear_gain, angular_gain, linear_dead_band=0.0,
+                 angular_dead_band=0.0):
+    """
+    Return (v, w), each (3,) in {0}: a rate-mode velocity command from the wrist's offset.
+
+    The Section 4 pose difference (kinematics.pose_difference(pose, centre)) times the gains
+    (1/s). The dead bands (m, rad) are subtracted from the lengths of dp and of the rotation
+    vector, so small offsets command nothing and the command stays continuous. A non-finite
+    result gives zero velocities.
+    """
+    linear_gain = _real('linear_gain', linear_gain, lower=-math.inf)
+    angular_gain = _real('angular_gain', angular_gain, lower=-math.inf)
+    linear_dead_band = _real('linear_dead_band', linear_dead_band)
+    angular_dead_band = _real('angular_dead_band', angular_dead_band)
+    dp, dw = kinematics.pose_difference(pose, centre)
+    v = _outside_dead_band(dp.tolist(), linear_gain, linear_dead_band)
+    w = _outside_dead_band(dw.tolist(), angular_gain, angular_dead_band)
+    if not all(map(math.isfinite, v + w)):
+        return np.zeros(3), np.zeros(3)
+    return np.array(v), np.array(w)

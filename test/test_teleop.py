@@ -1,0 +1,489 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Tests of the force reflection and rate command logic (kraft_master_driver.teleop)."""
+import math
+import threading
+
+from hypothesis import given, settings, strategies as st
+import numpy as np
+import pytest
+
+from kraft_master_driver import kinematics
+from kraft_master_driver.teleop import (
+    BASE_FRAME, ForceReflection, rate_command, REJECTION_REASONS, WRIST_FRAME)
+
+T0 = 5_000_000_000_000  # an arbitrary time.monotonic_ns() reading
+TIMEOUT_NS = 50_000_000  # the default wrench_timeout, 0.05 s
+NO_LIMIT = (1e9,) * 5
+ZERO5, ZERO6 = (0.0,) * 5, (0.0,) * 6
+WRENCH = (3.0, -2.0, 5.0, 0.3, 0.2, -0.4)
+
+
+def random_theta(rng):
+    """Return a joint vector inside the Table II limits (elbow bound coupled to th2)."""
+    lower, upper = kinematics.joint_limits()
+    theta = rng.uniform(lower, upper)
+    lower, upper = kinematics.joint_limits(theta[1])
+    theta[2] = rng.uniform(lower[2], upper[2])
+    return theta
+
+
+def random_wrench(rng):
+    """Return a wrench well inside the default max_force and max_moment."""
+    return tuple(np.concatenate((rng.uniform(-40, 40, 3), rng.uniform(-4, 4, 3))).tolist())
+
+
+def reflection(**kwargs):
+    """Return an enabled ForceReflection, without saturation unless torque_limits is given."""
+    kwargs.setdefault('torque_limits', NO_LIMIT)
+    return ForceReflection(enabled=True, **kwargs)
+
+
+def pose_and_jacobian(theta):
+    """Return (0T6, 0R6, 0J) at theta."""
+    pose, jac = kinematics.forward_and_jacobian(theta)
+    return pose, pose[:3, :3], jac
+
+
+def compute_once(fr, wrench, frame, theta, **kwargs):
+    """Submit wrench at T0 and compute at T0."""
+    assert fr.submit(wrench, frame, T0, tag=42) == (True, '')
+    _, rotation, jac = pose_and_jacobian(theta)
+    return fr.compute(rotation, jac, T0, **kwargs)
+
+
+def assert_zero(out, state):
+    """Assert exactly zero torques with the given state."""
+    assert out.actuator == ZERO5
+    assert out.joint == ZERO6
+    assert out.state == state
+    assert out.saturated is False
+    assert out.tag is None
+
+
+@pytest.mark.parametrize('seed', range(20))
+def test_base_and_wrist_torques_equal_jacobian_transpose_times_wrench(seed):
+    rng = np.random.default_rng(seed)
+    theta, wrench = random_theta(rng), random_wrench(rng)
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection(coupling='joint')
+
+    out = compute_once(fr, wrench, BASE_FRAME, theta)
+    expected = jac.T @ np.array(wrench)
+    np.testing.assert_allclose(out.actuator, expected[:5], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(out.joint, tuple(expected[:5]) + (0.0,), rtol=1e-12, atol=1e-12)
+    assert out.state == 'active' and out.tag == 42 and not out.saturated
+
+    out = compute_once(fr, wrench, WRIST_FRAME, theta)
+    base_wrench = np.concatenate((rotation @ wrench[:3], rotation @ wrench[3:]))
+    np.testing.assert_allclose(out.actuator, (jac.T @ base_wrench)[:5], rtol=1e-12, atol=1e-12)
+
+
+def test_wrist_frame_wrench_equals_the_same_wrench_in_base_axes():
+    rng = np.random.default_rng(7)
+    theta, wrench = random_theta(rng), np.array(random_wrench(rng))
+    rotation = kinematics.forward(theta)[:3, :3]
+    in_wrist_axes = tuple(np.concatenate((rotation.T @ wrench[:3], rotation.T @ wrench[3:])))
+    fr = reflection()
+    np.testing.assert_allclose(
+        compute_once(fr, in_wrist_axes, WRIST_FRAME, theta).actuator,
+        compute_once(fr, tuple(wrench), BASE_FRAME, theta).actuator, rtol=1e-12, atol=1e-12)
+
+
+def test_force_scale_scales_torques():
+    theta = random_theta(np.random.default_rng(3))
+    unit = compute_once(reflection(), WRENCH, BASE_FRAME, theta)
+    scaled = compute_once(reflection(force_scale=2.5), WRENCH, BASE_FRAME, theta)
+    np.testing.assert_allclose(scaled.actuator, 2.5 * np.array(unit.actuator), rtol=1e-12)
+    muted = compute_once(reflection(force_scale=0.0), WRENCH, BASE_FRAME, theta)
+    assert muted.actuator == ZERO5 and muted.state == 'active'
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_actuator_coupling_is_the_virtual_work_dual_of_joint_coupling(seed):
+    rng = np.random.default_rng(100 + seed)
+    theta, wrench = random_theta(rng), random_wrench(rng)
+    joint_form = compute_once(reflection(coupling='joint'), wrench, BASE_FRAME, theta)
+    actuator_form = compute_once(reflection(coupling='actuator'), wrench, BASE_FRAME, theta)
+
+    t1, t2, t3, t4, t5 = joint_form.actuator
+    np.testing.assert_allclose(actuator_form.actuator, (t1, t2 - t3, t3, t4, t5), atol=1e-12)
+    np.testing.assert_allclose(
+        actuator_form.actuator, kinematics.actuator_torques(joint_form.actuator), atol=1e-12)
+    np.testing.assert_allclose(actuator_form.joint, joint_form.joint, atol=1e-12)
+
+    # Same power for any motion of the driven joints: wrench . twist = tau . theta_dot
+    # = tau_q . q_dot, with q = (th1, th2, th2 + th3, th4, th5) the actuator coordinates.
+    theta_dot = np.append(rng.normal(size=5), 0.0)
+    q_dot = theta_dot[:5].copy()
+    q_dot[2] = theta_dot[1] + theta_dot[2]
+    twist = kinematics.jacobian(theta) @ theta_dot
+    power = float(np.dot(wrench, twist))
+    assert math.isclose(np.dot(joint_form.actuator, theta_dot[:5]), power, abs_tol=1e-9)
+    assert math.isclose(np.dot(actuator_form.actuator, q_dot), power, abs_tol=1e-9)
+
+
+fraction = st.floats(0.0, 1.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.tuples(*[fraction] * 6),
+       st.tuples(*[st.floats(-60, 60)] * 3, *[st.floats(-6, 6)] * 3),
+       st.tuples(*[st.floats(0.01, 5.0)] * 5),
+       st.sampled_from(('actuator', 'joint')))
+def test_saturation_scales_the_whole_vector_and_respects_every_limit(
+        fractions, wrench, limits, coupling):
+    lower, upper = kinematics.joint_limits()
+    theta = lower + np.array(fractions) * (upper - lower)
+    lower, upper = kinematics.joint_limits(theta[1])
+    theta[2] = lower[2] + fractions[2] * (upper[2] - lower[2])
+    free = compute_once(reflection(coupling=coupling), wrench, BASE_FRAME, theta)
+    fr = reflection(coupling=coupling, torque_limits=limits)
+    out = compute_once(fr, wrench, BASE_FRAME, theta)
+
+    assert all(abs(tau) <= limit for tau, limit in zip(out.actuator, limits))
+    free_torques = np.array(free.actuator)
+    over = [abs(tau) / limit for tau, limit in zip(free_torques, limits) if abs(tau) > limit]
+    factor = 1.0 / max(over) if over else 1.0
+    assert out.saturated == bool(over)
+    assert fr.counters['saturation_events'] == int(bool(over))
+    np.testing.assert_allclose(out.actuator, factor * free_torques, rtol=1e-12, atol=1e-12)
+    if out.saturated:
+        assert any(math.isclose(abs(tau), limit, rel_tol=1e-12)
+                   for tau, limit in zip(out.actuator, limits))
+    expected_joint = kinematics.joint_torques_from_actuator(out.actuator) \
+        if coupling == 'actuator' else out.actuator
+    np.testing.assert_allclose(out.joint, tuple(expected_joint) + (0.0,), atol=1e-12)
+
+
+def test_saturation_events_count_entries_into_saturation():
+    theta = random_theta(np.random.default_rng(5))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection(torque_limits=(0.5,) * 5, coupling='joint')
+    strong, weak = tuple(20.0 * x for x in WRENCH), tuple(1e-3 * x for x in WRENCH)
+    seen = []
+    for wrench in (strong, strong, weak, strong, strong, strong):
+        fr.submit(wrench, BASE_FRAME, T0)
+        seen.append(fr.compute(rotation, jac, T0).saturated)
+    assert seen == [True, True, False, True, True, True]
+    assert fr.counters['saturation_events'] == 2
+    assert fr.counters['saturated_cycles'] == 5
+
+
+def test_disabled_no_wrench_and_cleared_give_zero_torques():
+    theta = random_theta(np.random.default_rng(11))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = ForceReflection(torque_limits=NO_LIMIT)
+    assert fr.enabled is False
+    fr.submit(WRENCH, BASE_FRAME, T0)
+    assert_zero(fr.compute(rotation, jac, T0), 'disabled')
+
+    fr = reflection()
+    assert_zero(fr.compute(rotation, jac, T0), 'no_wrench')
+    fr.submit(WRENCH, BASE_FRAME, T0, tag=9)
+    assert fr.compute(rotation, jac, T0).tag == 9
+    fr.clear()
+    assert_zero(fr.compute(rotation, jac, T0), 'no_wrench')
+    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.enabled = False
+    assert_zero(fr.compute(rotation, jac, T0), 'disabled')
+    fr.enabled = True
+    assert fr.compute(rotation, jac, T0).state == 'active'
+
+
+def test_stale_wrench_gives_zero_torques_and_trips_the_watchdog_once():
+    theta = random_theta(np.random.default_rng(12))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    fr.submit(WRENCH, BASE_FRAME, T0)
+    assert fr.compute(rotation, jac, T0 + TIMEOUT_NS).state == 'active'
+    for step in range(1, 50):
+        assert_zero(fr.compute(rotation, jac, T0 + TIMEOUT_NS + step), 'stale')
+    assert fr.counters['watchdog_trips'] == 1
+    fr.enabled = False
+    fr.compute(rotation, jac, T0 + 2 * TIMEOUT_NS)
+    fr.enabled = True
+    assert_zero(fr.compute(rotation, jac, T0 + 3 * TIMEOUT_NS), 'stale')
+    assert fr.counters['watchdog_trips'] == 1
+
+    later = T0 + 10 * TIMEOUT_NS
+    fr.submit(WRENCH, BASE_FRAME, later)
+    assert fr.compute(rotation, jac, later + 1).state == 'active'
+    assert_zero(fr.compute(rotation, jac, later + 2 * TIMEOUT_NS), 'stale')
+    assert_zero(fr.compute(rotation, jac, later + 3 * TIMEOUT_NS), 'stale')
+    assert fr.counters['watchdog_trips'] == 2
+
+
+def test_receipt_stamped_far_in_the_future_is_stale():
+    theta = random_theta(np.random.default_rng(13))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    fr.submit(WRENCH, BASE_FRAME, T0 + 1000)
+    assert fr.compute(rotation, jac, T0).state == 'active'
+    fr.submit(WRENCH, BASE_FRAME, T0 + TIMEOUT_NS + 1)
+    assert_zero(fr.compute(rotation, jac, T0), 'stale')
+
+
+def test_wrench_timeout_change_applies_at_once():
+    theta = random_theta(np.random.default_rng(14))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    fr.submit(WRENCH, BASE_FRAME, T0)
+    assert fr.compute(rotation, jac, T0 + 80_000_000).state == 'stale'
+    fr.configure(wrench_timeout=0.1)
+    assert fr.compute(rotation, jac, T0 + 80_000_000).state == 'active'
+
+
+nan, inf = math.nan, math.inf
+
+
+@pytest.mark.parametrize('wrench, frame, received_ns, reason', [
+    ((nan, 0, 0, 0, 0, 0), BASE_FRAME, T0, 'non_finite'),
+    ((0, 0, 0, 0, 0, inf), WRIST_FRAME, T0, 'non_finite'),
+    ((0, -inf, 0, 0, 0, 0), BASE_FRAME, T0, 'non_finite'),
+    ((150.0, 150.0, 0, 0, 0, 0), BASE_FRAME, T0, 'force_limit'),
+    ((0, 0, -1e30, 0, 0, 0), BASE_FRAME, T0, 'force_limit'),
+    ((0, 0, 0, 15.0, 0, -15.0), BASE_FRAME, T0, 'moment_limit'),
+    (WRENCH, 'tool', T0, 'unknown_frame'),
+    (WRENCH, None, T0, 'unknown_frame'),
+    (WRENCH[:5], BASE_FRAME, T0, 'malformed'),
+    (WRENCH + (1.0,), BASE_FRAME, T0, 'malformed'),
+    ('123456', BASE_FRAME, T0, 'malformed'),
+    (None, BASE_FRAME, T0, 'malformed'),
+    (('a', 0, 0, 0, 0, 0), BASE_FRAME, T0, 'malformed'),
+    (np.zeros((2, 3)), BASE_FRAME, T0, 'malformed'),
+    (WRENCH, BASE_FRAME, float(T0), 'bad_timestamp'),
+    (WRENCH, BASE_FRAME, None, 'bad_timestamp'),
+])
+def test_rejected_wrench_zeroes_torques_until_a_valid_one_arrives(
+        wrench, frame, received_ns, reason):
+    theta = random_theta(np.random.default_rng(15))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    fr.submit(WRENCH, BASE_FRAME, T0, tag=1)
+    before = fr.compute(rotation, jac, T0)
+    assert before.state == 'active' and any(before.actuator)
+
+    accepted, message = fr.submit(wrench, frame, received_ns, tag=2)
+    assert not accepted and message.startswith(reason + ': ')
+    for _ in range(3):
+        assert_zero(fr.compute(rotation, jac, T0), 'rejected')
+    assert fr.rejections == {key: int(key == reason) for key in REJECTION_REASONS}
+    assert fr.counters[f'rejected_{reason}'] == 1
+
+    assert fr.submit(WRENCH, BASE_FRAME, T0, tag=3) == (True, '')
+    after = fr.compute(rotation, jac, T0)
+    assert after.actuator == before.actuator and after.state == 'active' and after.tag == 3
+
+
+def test_max_force_and_moment_changes_apply_to_later_wrenches():
+    fr = reflection()
+    assert fr.submit(WRENCH, BASE_FRAME, T0)[0]
+    fr.configure(max_force=1.0)
+    assert fr.submit(WRENCH, BASE_FRAME, T0)[1].startswith('force_limit')
+    fr.configure(max_force=10.0, max_moment=0.1)
+    assert fr.submit(WRENCH, BASE_FRAME, T0)[1].startswith('moment_limit')
+
+
+@pytest.mark.parametrize('frame, bad', [
+    (BASE_FRAME, 'jacobian'), (WRIST_FRAME, 'rotation'), (WRIST_FRAME, 'jacobian')])
+@pytest.mark.parametrize('value', [nan, inf])
+def test_non_finite_result_gives_zero_torques(frame, bad, value):
+    theta = random_theta(np.random.default_rng(16))
+    _, rotation, jac = pose_and_jacobian(theta)
+    inputs = {'rotation': rotation.copy(), 'jacobian': jac.copy()}
+    inputs[bad][2, 1] = value
+    fr = reflection()
+    fr.submit(WRENCH, frame, T0)
+    assert_zero(fr.compute(inputs['rotation'], inputs['jacobian'], T0), 'rejected')
+    assert fr.counters['non_finite_results'] == 1
+    assert fr.compute(rotation, jac, T0).state == 'active'
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_return_to_centre_spring_pushes_back_toward_the_centre(seed):
+    rng = np.random.default_rng(200 + seed)
+    centre_theta = random_theta(rng)
+    step = np.append(rng.normal(size=5), 0.0)
+    theta = centre_theta + 0.05 * step / np.linalg.norm(step)
+    centre = kinematics.forward(centre_theta)
+    pose, rotation, jac = pose_and_jacobian(theta)
+    stiffness = (300.0, 2.0)
+    fr = reflection(coupling='joint', centre_stiffness=stiffness)
+    fr.submit(ZERO6, BASE_FRAME, T0)
+    out = fr.compute(rotation, jac, T0, pose=pose, centre=centre)
+
+    dp, w = kinematics.pose_difference(pose, centre)
+    expected = jac.T @ np.concatenate((-stiffness[0] * dp, -stiffness[1] * w))
+    np.testing.assert_allclose(out.actuator, expected[:5], rtol=1e-12, atol=1e-12)
+    assert np.dot(out.actuator, (theta - centre_theta)[:5]) < 0.0
+
+    for missing in ({'pose': pose}, {'centre': centre}, {}):
+        assert fr.compute(rotation, jac, T0, **missing).actuator == ZERO5
+    plain = reflection(coupling='joint')
+    plain.submit(ZERO6, BASE_FRAME, T0)
+    assert plain.compute(rotation, jac, T0, pose=pose, centre=centre).actuator == ZERO5
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_damping_opposes_velocity(seed):
+    rng = np.random.default_rng(300 + seed)
+    theta = random_theta(rng)
+    _, rotation, jac = pose_and_jacobian(theta)
+    theta_dot = np.append(rng.normal(size=5), 0.0)
+    twist = jac @ theta_dot
+    damping = (8.0, 0.05)
+    fr = reflection(coupling='actuator', centre_damping=damping)
+    fr.submit(ZERO6, BASE_FRAME, T0)
+    out = fr.compute(rotation, jac, T0, cartesian_velocity=twist)
+
+    dissipated = damping[0] * twist[:3] @ twist[:3] + damping[1] * twist[3:] @ twist[3:]
+    assert dissipated > 0.0
+    assert math.isclose(np.dot(out.joint, theta_dot), -dissipated, rel_tol=1e-9)
+    assert fr.compute(rotation, jac, T0).actuator == ZERO5
+
+
+def test_spring_and_damper_add_to_the_scaled_task_wrench():
+    rng = np.random.default_rng(17)
+    centre_theta = random_theta(rng)
+    theta = centre_theta + 0.03
+    centre = kinematics.forward(centre_theta)
+    pose, rotation, jac = pose_and_jacobian(theta)
+    twist = jac @ rng.normal(size=6)
+    fr = reflection(coupling='joint', force_scale=0.5, centre_stiffness=(100.0, 1.0),
+                    centre_damping=(5.0, 0.02))
+    fr.submit(WRENCH, BASE_FRAME, T0)
+    out = fr.compute(rotation, jac, T0, pose=pose, centre=centre, cartesian_velocity=twist)
+    dp, w = kinematics.pose_difference(pose, centre)
+    total = (0.5 * np.array(WRENCH) - np.concatenate((100.0 * dp, 1.0 * w))
+             - np.concatenate((5.0 * twist[:3], 0.02 * twist[3:])))
+    np.testing.assert_allclose(out.actuator, (jac.T @ total)[:5], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_rate_command_is_the_scaled_pose_difference(seed):
+    rng = np.random.default_rng(400 + seed)
+    pose, centre = kinematics.forward(random_theta(rng)), kinematics.forward(random_theta(rng))
+    dp, w = kinematics.pose_difference(pose, centre)
+    v_cmd, w_cmd = rate_command(pose, centre, 2.0, 0.5)
+    assert v_cmd.shape == w_cmd.shape == (3,)
+    np.testing.assert_array_equal(v_cmd, 2.0 * dp)
+    np.testing.assert_array_equal(w_cmd, 0.5 * w)
+
+
+def test_rate_command_paper_example():
+    pose = kinematics.forward(np.radians([-25, 40, -100, -35, 10, 20]))
+    centre = kinematics.forward(np.radians([0, 90, -90, 0, 0, 0]))
+    v, w = rate_command(pose, centre, 1.0, 1.0)
+    np.testing.assert_allclose(v, np.array([22.293, -118.805, -281.387]) * 1e-3, atol=2e-6)
+    np.testing.assert_allclose(w, (-0.3574, 0.5958, -0.9987), atol=2e-4)
+
+
+def test_rate_command_dead_band_shrinks_offsets_continuously():
+    centre = kinematics.forward(np.radians([0, 60, -100, 0, 10, 0]))
+    pose = centre.copy()
+    pose[:3, 3] += (0.003, 0.004, 0.0)  # 5 mm
+    v, w = rate_command(pose, centre, 2.0, 1.0, linear_dead_band=0.006)
+    assert v.tolist() == [0.0, 0.0, 0.0] and w.tolist() == [0.0, 0.0, 0.0]
+    v, _ = rate_command(pose, centre, 2.0, 1.0, linear_dead_band=0.002)
+    np.testing.assert_allclose(v, 2.0 * np.array([0.003, 0.004, 0.0]) * (3.0 / 5.0), atol=1e-12)
+    v_edge, _ = rate_command(pose, centre, 2.0, 1.0, linear_dead_band=0.005 - 1e-12)
+    assert np.linalg.norm(v_edge) < 1e-10
+
+
+def test_rate_command_non_finite_pose_gives_zero_and_bad_gains_raise():
+    centre = kinematics.forward(np.radians([0, 60, -100, 0, 10, 0]))
+    pose = centre.copy()
+    pose[0, 3] = nan
+    v, w = rate_command(pose, centre, 1.0, 1.0)
+    assert v.tolist() == [0.0, 0.0, 0.0] and w.tolist() == [0.0, 0.0, 0.0]
+    for bad in ({'linear_gain': nan}, {'angular_gain': 'fast'}, {'linear_dead_band': -0.1}):
+        args = {'linear_gain': 1.0, 'angular_gain': 1.0, **bad}
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            rate_command(centre, centre, **args)
+
+
+@pytest.mark.parametrize('name, value', [
+    ('force_scale', -1.0), ('force_scale', nan), ('force_scale', inf), ('force_scale', '2'),
+    ('force_scale', True),
+    ('torque_limits', (1.0,) * 4), ('torque_limits', (0.0, 1.0, 1.0, 1.0, 1.0)),
+    ('torque_limits', (1.0, 1.0, nan, 1.0, 1.0)), ('torque_limits', 'abcde'),
+    ('torque_limits', 3.0), ('torque_limits', (1.0, 1.0, 1.0, 1.0, -2.0)),
+    ('coupling', 'both'), ('coupling', None),
+    ('wrench_timeout', 0.0), ('wrench_timeout', -0.01), ('wrench_timeout', 6.0),
+    ('wrench_timeout', nan),
+    ('max_force', -1.0), ('max_force', nan), ('max_moment', inf), ('max_moment', None),
+    ('centre_stiffness', (1.0,)), ('centre_stiffness', (-1.0, 0.0)),
+    ('centre_damping', (nan, 0.0)), ('centre_damping', (0.0, 0.0, 0.0)),
+    ('enabled', 'yes'), ('enabled', 1),
+])
+def test_bad_settings_raise_naming_the_setting_and_change_nothing(name, value):
+    with pytest.raises(ValueError, match=name):
+        ForceReflection(**{name: value})
+    fr = ForceReflection()
+    before = fr.settings
+    with pytest.raises(ValueError, match=name):
+        fr.configure(**{name: value})
+    valid_change = {'coupling': 'joint'} if name != 'coupling' else {'force_scale': 3.0}
+    with pytest.raises(ValueError, match=name):
+        fr.configure(**valid_change, **{name: value})
+    assert fr.settings == before
+
+
+def test_configure_applies_valid_changes_and_rejects_unknown_names():
+    theta = random_theta(np.random.default_rng(18))
+    fr = reflection(coupling='joint')
+    unit = compute_once(fr, WRENCH, BASE_FRAME, theta)
+    fr.configure(force_scale=np.float64(3.0), torque_limits=[400.0, 400, 400, 400, 400.0],
+                 centre_damping=np.array([1.0, 0.1]))
+    assert fr.force_scale == 3.0 and fr.torque_limits == (400.0,) * 5
+    assert fr.centre_damping == (1.0, 0.1)
+    tripled = compute_once(fr, WRENCH, BASE_FRAME, theta)
+    assert not tripled.saturated
+    np.testing.assert_allclose(tripled.actuator, 3.0 * np.array(unit.actuator), rtol=1e-12)
+    fr.configure(coupling='actuator')
+    assert fr.coupling == 'actuator'
+    with pytest.raises(ValueError, match='gain'):
+        fr.configure(gain=1.0)
+    with pytest.raises(AttributeError):
+        fr.force_scale = 2.0
+    with pytest.raises(ValueError, match='enabled'):
+        fr.enabled = 'on'
+    assert fr.enabled is True
+
+
+def test_counters_start_at_zero():
+    counters = ForceReflection().counters
+    assert counters == {
+        'watchdog_trips': 0, 'saturation_events': 0, 'saturated_cycles': 0,
+        'non_finite_results': 0, **{f'rejected_{key}': 0 for key in REJECTION_REASONS}}
+
+
+def test_submissions_and_changes_from_another_thread_never_mix_within_a_cycle():
+    theta = random_theta(np.random.default_rng(19))
+    _, rotation, jac = pose_and_jacobian(theta)
+    other = tuple(-2.0 * x for x in WRENCH)
+    expected = set()
+    for wrench in (WRENCH, other):
+        for scale in (1.0, 2.0):
+            expected.add(compute_once(reflection(force_scale=scale), wrench, BASE_FRAME,
+                                      theta).actuator)
+    fr = reflection()
+    fr.submit(WRENCH, BASE_FRAME, T0)
+    done = threading.Event()
+
+    def writer():
+        for i in range(20000):
+            fr.submit((WRENCH, other)[i % 2], BASE_FRAME, T0)
+            fr.configure(force_scale=(1.0, 2.0)[i % 3 == 0])
+        done.set()
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    seen = set()
+    while not done.is_set():
+        out = fr.compute(rotation, jac, T0)
+        assert out.state == 'active' and out.actuator in expected
+        seen.add(out.actuator)
+    thread.join()
+    assert len(seen) >= 2
