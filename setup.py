@@ -25,6 +25,8 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
+            'kraft_master_node = kraft_master_driver.node:main',
+            'kraft_master_sim = kraft_master_driver.simulator:main',
             'kraft_master_demo = kraft_master_driver.demo:main',
         ],
     },

@@ -1,0 +1,312 @@
+#!/usr/bin/env python3
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The driver's force loop measured end to end, every party in its own process.
+
+The simulated device (kraft_master_sim on a pseudo-terminal), the driver
+(kraft_master_node), a wrench publisher and a joint_states subscriber run side by side for
+--duration seconds at each loop rate; then the figures are printed as a table and written
+as JSON:
+
+- achieved cycle rate (commands the device received per second), late and missed cycles;
+- cycle period distribution (the joint_states stamps, taken when each pot frame arrived);
+- pot frame at the driver -> joint_states received by the subscriber;
+- wrench published -> the matching torque command received by the device: the publisher
+  flips the sign of its moment about z every 20 ms, which flips the sign of the axis-1
+  command (tau1 = mz), and each flip is matched with the first command of the new sign;
+- CPU time per cycle of the driver's loop thread by phase, and of the whole process;
+- with wire timing at 115200 baud and 1 Mbaud: achieved rate over the wire-limited rate.
+"""
+import argparse
+import json
+import os
+import pathlib
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from kraft_master_driver.protocol import get_codec  # noqa: E402
+
+FLIP_PERIOD_S = 0.02
+WRENCH_RATE_HZ = 1000.0
+MOMENT_NM = 0.5
+
+
+def ros_env(domain_id):
+    """Environment of every process of a run: local discovery, one private domain."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1')
+    return env
+
+
+# -- the peer processes ----------------------------------------------------------------------
+
+def run_subscriber(out_path, duration):
+    """Record (receive time, stamp) of every joint_states message and the last diagnostics."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.experimental import EventsExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    rclpy.init()
+    node = rclpy.create_node('loop_benchmark_subscriber')
+    capacity = int(duration * 6000) + 10000
+    received = np.zeros((capacity, 2), dtype=np.int64)
+    count = [0]
+    diagnostics = {}
+
+    ready = pathlib.Path(out_path + '.ready')
+
+    def on_state(msg):
+        i = count[0]
+        if i == 0:
+            ready.touch()
+        if i < capacity:
+            received[i, 0] = time.time_ns()
+            received[i, 1] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            count[0] = i + 1
+
+    def on_diagnostics(msg):
+        for status in msg.status:
+            diagnostics.update({kv.key: kv.value for kv in status.values})
+
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(JointState, 'joint_states', on_state, qos)
+    node.create_subscription(DiagnosticArray, 'diagnostics', on_diagnostics, 10)
+    executor = EventsExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        np.save(out_path + '.npy', received[:count[0]])
+        with open(out_path + '.json', 'w') as stream:
+            json.dump(diagnostics, stream)
+        rclpy.try_shutdown()
+
+
+def run_publisher(out_path, duration):
+    """Publish a wrench at 1 kHz whose moment about z flips sign every 20 ms."""
+    import rclpy
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    rclpy.init()
+    node = rclpy.create_node('loop_benchmark_wrench')
+    publisher = node.create_publisher(
+        WrenchStamped, 'wrench', QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    while publisher.get_subscription_count() == 0:
+        time.sleep(0.05)
+    pathlib.Path(out_path + '.ready').touch()
+    msg = WrenchStamped()
+    msg.header.frame_id = 'kraft_master_base'
+    flips = []
+    period_ns = int(1e9 / WRENCH_RATE_HZ)
+    flip_every = int(FLIP_PERIOD_S * WRENCH_RATE_HZ)
+    sign = 1.0
+    stop = []
+    signal.signal(signal.SIGINT, lambda *_: stop.append(True))
+    deadline = time.monotonic_ns()
+    i = 0
+    while not stop:
+        if i % flip_every == 0:
+            sign = -sign
+            flips.append((time.time_ns(), sign))
+        now = time.time_ns()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(now, 1_000_000_000)
+        msg.wrench.torque.z = sign * MOMENT_NM
+        publisher.publish(msg)
+        i += 1
+        deadline += period_ns
+        delay = deadline - time.monotonic_ns()
+        if delay > 0:
+            time.sleep(delay / 1e9)
+    np.save(out_path, np.array(flips, dtype=np.float64))
+    rclpy.try_shutdown()
+
+
+# -- one run -----------------------------------------------------------------------------------
+
+def process_cpu_seconds(pid):
+    """User + system CPU time of a process so far, from /proc."""
+    fields = pathlib.Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def start_simulator(env, record, baud):
+    command = [sys.executable, '-m', 'kraft_master_driver.simulator', '--record', record]
+    if baud:
+        command += ['--baud', str(baud)]
+    sim = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, text=True)
+    line = sim.stdout.readline()
+    if not line.startswith('port: '):
+        raise RuntimeError(f'kraft_master_sim did not print its port: {line!r}')
+    return sim, line.split(': ', 1)[1].strip()
+
+
+def wait_ready(paths, processes, timeout=60.0):
+    """Wait until the peers have matched the driver (they touch a file each)."""
+    deadline = time.monotonic() + timeout
+    while not all(os.path.exists(path) for path in paths):
+        failed = [p.args for p in processes if p.poll() is not None]
+        if failed or time.monotonic() > deadline:
+            raise RuntimeError(f'peers not ready; exited: {failed}')
+        time.sleep(0.05)
+
+
+def percentiles(values, scale):
+    values = np.asarray(values, dtype=float) * scale
+    if values.size == 0:
+        return {'median': None, 'p99': None, 'p99.9': None, 'max': None, 'n': 0}
+    median, p99, p999 = np.percentile(values, (50, 99, 99.9))
+    return {'median': median, 'p99': p99, 'p99.9': p999, 'max': values.max(),
+            'n': int(values.size)}
+
+
+def wrench_latencies(flips, commands):
+    """Flip publish time -> first device command with the new sign of axis 1 (s)."""
+    times, axis1 = commands[:, 0], commands[:, 1]
+    latencies = []
+    for published_ns, sign in flips:
+        after = np.flatnonzero((times >= published_ns) & (np.sign(axis1) == sign))
+        if after.size:
+            latencies.append((times[after[0]] - published_ns) / 1e9)
+    return latencies
+
+
+def run(rate_hz, duration, baud, domain_id, workdir):
+    """Run the four processes for `duration` s; return the figures of this run."""
+    env = ros_env(domain_id)
+    tag = f'{rate_hz:g}Hz_{baud or "pty"}'
+    record = str(workdir / f'device_{tag}.npy')
+    sim, port = start_simulator(env, record, baud)
+    node_args = ['--ros-args', '-p', f'port:={port}', '-p', f'loop_rate_hz:={rate_hz}',
+                 '-p', 'force_enabled_at_start:=true', '-p', 'reply_timeout:=0.02']
+    if baud:
+        node_args += ['-p', f'baud:={baud}']
+    driver = subprocess.Popen([sys.executable, '-m', 'kraft_master_driver.node', *node_args],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    subscriber_out = str(workdir / f'subscriber_{tag}')
+    publisher_out = str(workdir / f'publisher_{tag}.npy')
+    peers = [subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
+                               '--duration', str(duration)], env=env)
+             for role, out in (('subscriber', subscriber_out), ('publisher', publisher_out))]
+    wait_ready([subscriber_out + '.ready', publisher_out + '.ready'], (*peers, driver, sim))
+    cpu_start, wall_start = process_cpu_seconds(driver.pid), time.time_ns()
+    time.sleep(duration)
+    cpu_end, wall_end = process_cpu_seconds(driver.pid), time.time_ns()
+    for process in (*peers, driver, sim):
+        process.send_signal(signal.SIGINT)
+        process.wait(timeout=30)
+
+    states = np.load(subscriber_out + '.npy')
+    with open(subscriber_out + '.json') as stream:
+        diagnostics = json.load(stream)
+    flips = np.load(publisher_out)
+    device = np.load(record)
+    in_window = (device[:, 0] >= wall_start) & (device[:, 0] < wall_end)
+    states_window = states[(states[:, 1] >= wall_start) & (states[:, 1] < wall_end)]
+    window_s = (wall_end - wall_start) / 1e9
+    cycles = int(in_window.sum())
+    figures = {
+        'loop_rate_hz': rate_hz,
+        'baud': baud,
+        'window_s': window_s,
+        'cycles_per_s': cycles / window_s,
+        'joint_states_per_s': len(states_window) / window_s,
+        'late_cycles': int(diagnostics.get('late cycles', -1)),
+        'missed_cycles': int(diagnostics.get('missed cycles', -1)),
+        'period_ms': percentiles(np.diff(np.sort(states_window[:, 1])), 1e-6),
+        'pot_frame_to_subscriber_ms': percentiles(states_window[:, 0] - states_window[:, 1],
+                                                  1e-6),
+        'wrench_to_device_ms': percentiles(
+            wrench_latencies(flips[flips[:, 0] < wall_end - 1e8], device), 1e3),
+        'cpu_per_cycle_us': {
+            'link': float(diagnostics.get('cpu per cycle link (us)', 'nan')),
+            'kinematics': float(diagnostics.get('cpu per cycle kinematics (us)', 'nan')),
+            'publish': float(diagnostics.get('cpu per cycle publish (us)', 'nan')),
+            'process': 1e6 * (cpu_end - cpu_start) / max(cycles, 1),
+        },
+    }
+    if baud:
+        wire_rate = 1.0 / get_codec('kraft-default').wire_cycle_time(baud)
+        figures['wire_limited_rate'] = wire_rate
+        figures['achieved_over_wire_limited'] = figures['cycles_per_s'] / wire_rate
+    return figures
+
+
+# -- output ------------------------------------------------------------------------------------
+
+def fmt(value, digits=3):
+    return '-' if value is None else f'{value:.{digits}f}'
+
+
+def print_table(results):
+    print(f'{"run":>14} {"cycles/s":>9} {"late":>5} {"missed":>6} | period ms: {"med":>6} '
+          f'{"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: {"med":>6} {"p99":>6} '
+          f'{"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | cpu us/cycle: '
+          f'{"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire')
+    for r in results:
+        period, sub, wrench, cpu = (r['period_ms'], r['pot_frame_to_subscriber_ms'],
+                                    r['wrench_to_device_ms'], r['cpu_per_cycle_us'])
+        name = f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}'
+        wire = r.get('achieved_over_wire_limited')
+        print(f'{name:>14} {r["cycles_per_s"]:9.1f} {r["late_cycles"]:5d} '
+              f'{r["missed_cycles"]:6d} |            {fmt(period["median"]):>6} '
+              f'{fmt(period["p99"]):>6} {fmt(period["p99.9"]):>6} {fmt(period["max"]):>6} | '
+              f'              {fmt(sub["median"]):>6} {fmt(sub["p99"]):>6} '
+              f'{fmt(sub["max"]):>6} |                 {fmt(wrench["median"]):>6} '
+              f'{fmt(wrench["p99"]):>6} {fmt(wrench["max"]):>6} |               '
+              f'{cpu["link"]:5.0f} {cpu["kinematics"]:5.0f} {cpu["publish"]:5.0f} '
+              f'{cpu["process"]:6.0f} | {"-" if wire is None else f"{100 * wire:.1f}%"}')
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('--duration', type=float, default=20.0,
+                        help='measured seconds per run (default 20)')
+    parser.add_argument('--rates', type=float, nargs='+', default=[500.0, 1000.0, 2000.0])
+    parser.add_argument('--bauds', type=int, nargs='*', default=[115200, 1_000_000],
+                        help='wire-timed runs at 1000 Hz (default 115200 1000000)')
+    parser.add_argument('--json', help='write the figures here (default benchmarks/results/)')
+    parser.add_argument('--role', choices=('subscriber', 'publisher'), help=argparse.SUPPRESS)
+    parser.add_argument('--out', help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role == 'subscriber':
+        return run_subscriber(args.out, args.duration)
+    if args.role == 'publisher':
+        return run_publisher(args.out, args.duration)
+
+    domain_id = 100 + os.getpid() % 100
+    results = []
+    with tempfile.TemporaryDirectory() as workdir:
+        runs = [(rate, None) for rate in args.rates] + [(1000.0, baud) for baud in args.bauds]
+        for rate, baud in runs:
+            print(f'running {rate:g} Hz, {baud or "pty without wire timing"}, '
+                  f'{args.duration:g} s ...', flush=True)
+            results.append(run(rate, args.duration, baud, domain_id, pathlib.Path(workdir)))
+    print_table(results)
+    out = pathlib.Path(args.json or REPO / 'benchmarks' / 'results' /
+                       time.strftime('loop-%Y%m%d-%H%M%S.json'))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    machine = {'platform': platform.platform(), 'python': platform.python_version(),
+               'cpus': os.cpu_count()}
+    out.write_text(json.dumps({'machine': machine, 'runs': results}, indent=2, default=float))
+    print(f'figures written to {out}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,101 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Cheap per-cycle bookkeeping for the control loop: period statistics and joint velocity."""
+import math
+
+import numpy as np
+
+
+class RecentSamples:
+    """The last `size` samples of one quantity (ns) in a ring buffer, for percentiles."""
+
+    def __init__(self, size=4096):
+        """Keep the last `size` samples."""
+        self.samples_ns = np.zeros(size, dtype=np.int64)
+        self.count = 0
+
+    def add(self, value_ns):
+        """Record one sample."""
+        self.samples_ns[self.count % self.samples_ns.size] = value_ns
+        self.count += 1
+
+    def recent(self):
+        """The samples held, oldest order not kept (ns)."""
+        return self.samples_ns[:min(self.count, self.samples_ns.size)]
+
+    def percentiles_s(self):
+        """Return (median, p99, max) of the samples held, in seconds (zeros when empty)."""
+        samples = self.recent()
+        if samples.size == 0:
+            return 0.0, 0.0, 0.0
+        median, p99 = np.percentile(samples, (50, 99)) / 1e9
+        return float(median), float(p99), float(samples.max()) / 1e9
+
+
+class LoopStatistics:
+    """Cycle periods and link round trips in ring buffers, and counters for diagnostics."""
+
+    def __init__(self, window=4096):
+        """Keep the last `window` periods and round trips."""
+        self.periods = RecentSamples(window)
+        self.round_trips = RecentSamples(window)
+        self.frames = 0
+        self.late = 0
+        self.missed = 0
+        self.internal_errors = 0
+        self.cpu_ns = {'link': 0, 'kinematics': 0, 'publish': 0}
+        self._last_start_ns = None
+
+    @property
+    def cycles(self):
+        """Cycles started since the first one."""
+        return self.periods.count
+
+    def record_start(self, start_ns):
+        """Note the start of a cycle (time.monotonic_ns())."""
+        if self._last_start_ns is not None:
+            self.periods.add(start_ns - self._last_start_ns)
+        self._last_start_ns = start_ns
+
+    def add_cpu(self, link, kinematics, publish):
+        """Add one cycle's thread CPU time (ns) spent per phase."""
+        cpu = self.cpu_ns
+        cpu['link'] += link
+        cpu['kinematics'] += kinematics
+        cpu['publish'] += publish
+
+    def cpu_per_cycle(self):
+        """Mean thread CPU time per cycle (s) of each phase since start."""
+        cycles = max(self.cycles, 1)
+        return {phase: total / 1e9 / cycles for phase, total in self.cpu_ns.items()}
+
+    def rate_hz(self):
+        """Mean cycle rate over the periods held."""
+        periods = self.periods.recent()
+        return 1e9 * periods.size / float(periods.sum()) if periods.size else 0.0
+
+
+class VelocityFilter:
+    """Joint velocity: finite differences through a first-order low-pass filter."""
+
+    def __init__(self, cutoff_hz, size=6):
+        """Filter with the given cut-off frequency."""
+        self.cutoff_hz = cutoff_hz
+        self.value = np.zeros(size)
+        self._last = None
+        self._last_ns = 0
+
+    def update(self, position, time_ns):
+        """Take a sample (rad, time in ns); return the filtered velocity (rad/s)."""
+        if self._last is not None and time_ns > self._last_ns:
+            dt = (time_ns - self._last_ns) / 1e9
+            alpha = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * dt)
+            self.value += alpha * ((position - self._last) / dt - self.value)
+        self._last = position
+        self._last_ns = time_ns
+        return self.value
+
+    def reset(self):
+        """Forget the history (after a link fault): the next sample starts from rest."""
+        self.value[:] = 0.0
+        self._last = None

@@ -1,0 +1,513 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+kraft_master_node: the ROS 2 driver of one Kraft Master hand controller.
+
+One loop thread owns the device and the timing (torques out, pots in, kinematics,
+publish); the rclpy executor spins in the main thread for the wrench subscription,
+services, parameters and diagnostics. Only this module imports rclpy.
+"""
+import math
+import sys
+import threading
+import time
+from typing import NamedTuple
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from rcl_interfaces.msg import (
+    FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
+import rclpy
+import rclpy.exceptions
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool, Trigger
+
+from kraft_master_driver import kinematics
+from kraft_master_driver.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.device import KmcDevice
+from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
+from kraft_master_driver.protocol import (
+    CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE)
+from kraft_master_driver.teleop import BASE_FRAME, ForceReflection, rate_command, WRIST_FRAME
+
+SIM_PORT = 'sim'
+ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
+POT_NAMES = [f'pot{i}' for i in range(1, 7)]
+
+
+class Spec(NamedTuple):
+    """One parameter: default, description with units, range, whether fixed at start-up."""
+
+    default: object
+    description: str
+    read_only: bool = True
+    low: float = None
+    high: float = None
+    choices: tuple = ()
+    length: int = None
+
+
+_NOMINAL = ArmCalibration.nominal('right').to_parameters()['calibration']
+
+PARAMETERS = {
+    'arm': Spec('right', 'Which unit: right or left (the left arm mirrors L3).',
+                choices=kinematics.ARMS),
+    'port': Spec('/dev/ttyUSB0', 'Serial device path or pyserial URL of the KMC 9100; "sim" '
+                 'starts the built-in simulated hand controller on a pseudo-terminal.'),
+    'baud': Spec(1_000_000, 'Serial baud rate (bit/s).', low=1200, high=12_000_000),
+    'codec': Spec('kraft-default', 'Frame codec of the serial link.', choices=tuple(CODECS)),
+    'low_latency': Spec(False, 'Put the serial port into the kernel low-latency mode.'),
+    'reply_timeout': Spec(0.01, 'Time to wait for the pot frame of a cycle (s).',
+                          low=0.0005, high=1.0),
+    'loop_rate_hz': Spec(1000.0, 'Rate of the device cycle (Hz).', low=1.0, high=5000.0),
+    'publish_decimation': Spec(1, 'Publish state every Nth cycle (1 = every cycle).',
+                               read_only=False, low=1, high=1000),
+    'link_lengths': Spec(list(kinematics.NOMINAL_LENGTHS),
+                         'Link lengths L1, L2, L3, L4 (m); L3 positive for both arms.',
+                         low=0.001, high=2.0, length=4),
+    'calibration.pot_a': Spec(_NOMINAL['pot_a'], 'Pot counts at angle_a, POT1..POT6.',
+                              low=0.0, high=4095.0, length=6),
+    'calibration.pot_b': Spec(_NOMINAL['pot_b'], 'Pot counts at angle_b, POT1..POT6.',
+                              low=0.0, high=4095.0, length=6),
+    'calibration.angle_a_deg': Spec(_NOMINAL['angle_a_deg'], 'Angle read at pot_a (deg).',
+                                    low=-360.0, high=360.0, length=6),
+    'calibration.angle_b_deg': Spec(_NOMINAL['angle_b_deg'], 'Angle read at pot_b (deg).',
+                                    low=-360.0, high=360.0, length=6),
+    'torque_scale': Spec([float(x) for x in DEFAULT_TORQUE_SCALE],
+                         'Device command counts per N*m, axes 1..5.',
+                         low=1e-6, high=1e6, length=5),
+    'torque_command_limit': Spec([int(x) for x in DEFAULT_TORQUE_LIMIT],
+                                 'Clamp of the device command, counts, axes 1..5.',
+                                 low=1, high=32767, length=5),
+    'torque_limits': Spec([2.0] * 5, 'Largest actuator torque per axis 1..5 (N*m); above it '
+                          'the whole torque vector is scaled down together.',
+                          read_only=False, low=0.001, high=100.0, length=5),
+    'coupling': Spec('actuator', 'Torque form on channels 2 and 3: "actuator" (elbow motor '
+                     'drives th2 + th3) or "joint".', choices=('actuator', 'joint')),
+    'force_scale': Spec(1.0, 'Scale from task wrench to reflected wrench (1).',
+                        read_only=False, low=0.0, high=10.0),
+    'wrench_timeout': Spec(0.05, 'A wrench older than this gives zero torque (s).',
+                           read_only=False, low=0.001, high=5.0),
+    'max_force': Spec(200.0, 'Wrenches with a larger force are rejected (N).',
+                      read_only=False, low=0.0, high=1e4),
+    'max_moment': Spec(20.0, 'Wrenches with a larger moment are rejected (N*m).',
+                       read_only=False, low=0.0, high=1e3),
+    'force_enabled_at_start': Spec(False, 'Force output enabled at start-up; else call '
+                                   'the enable_force service.'),
+    'centre_stiffness': Spec([0.0, 0.0], 'Return-to-centre stiffness: linear (N/m), angular '
+                             '(N*m/rad).', read_only=False, low=0.0, high=1e4, length=2),
+    'centre_damping': Spec([0.0, 0.0], 'Return-to-centre damping: linear (N*s/m), angular '
+                           '(N*m*s/rad).', read_only=False, low=0.0, high=1e3, length=2),
+    'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain).',
+                                 read_only=False),
+    'rate_gain': Spec([1.0, 1.0], 'Rate command gains: linear (1/s), angular (1/s).',
+                      read_only=False, low=0.0, high=100.0, length=2),
+    'velocity_cutoff_hz': Spec(50.0, 'Low-pass cut-off of the joint velocity filter (Hz).',
+                               read_only=False, low=0.1, high=1000.0),
+    'base_frame': Spec('kraft_master_base', 'frame_id of the base frame {0}.'),
+    'wrist_frame': Spec('kraft_master_wrist', 'frame_id of the wrist frame {6}.'),
+    'joint_prefix': Spec('', 'Prefix of the joint names, e.g. "left_" for two arms.'),
+    'sim_operator': Spec('hold', 'Simulated operator hand (port "sim"): hold, sweep or '
+                         'random_walk.', choices=('hold', 'sweep', 'random_walk')),
+    'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
+                             low=0.0, high=100.0),
+}
+
+
+class ParameterError(ValueError):
+    """A parameter value the driver cannot run with; the message names the parameter."""
+
+
+def _descriptor(name, spec):
+    descriptor = ParameterDescriptor(name=name, description=spec.description,
+                                     read_only=spec.read_only)
+    if spec.choices:
+        descriptor.additional_constraints = 'one of: ' + ', '.join(spec.choices)
+    if spec.length:
+        descriptor.additional_constraints = (
+            f'{spec.length} values, each within {spec.low:g}..{spec.high:g}')
+    elif spec.low is not None and isinstance(spec.default, int):
+        descriptor.integer_range = [IntegerRange(
+            from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    elif spec.low is not None:
+        descriptor.floating_point_range = [FloatingPointRange(
+            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+    return descriptor
+
+
+def check_value(name, value):
+    """Return `value` if it suits parameter `name`, else raise ParameterError."""
+    spec = PARAMETERS[name]
+    if spec.choices and value not in spec.choices:
+        raise ParameterError(
+            f'parameter {name}: {value!r} is not one of {", ".join(spec.choices)}')
+    if spec.length is not None:
+        values = list(value)
+        if len(values) != spec.length:
+            raise ParameterError(
+                f'parameter {name}: expected {spec.length} values, got {len(values)}')
+        for item in values:
+            if not math.isfinite(item) or not spec.low <= item <= spec.high:
+                raise ParameterError(f'parameter {name}: {item!r} is outside '
+                                     f'{spec.low:g}..{spec.high:g}')
+        return values
+    if spec.low is not None and not (math.isfinite(value) and spec.low <= value <= spec.high):
+        raise ParameterError(
+            f'parameter {name}: {value!r} is outside {spec.low:g}..{spec.high:g}')
+    return value
+
+
+def _milliseconds(name, median_p99_max):
+    return {f'{name} {label} (ms)': f'{1e3 * seconds:.3f}'
+            for label, seconds in zip(('median', 'p99', 'max'), median_p99_max)}
+
+
+def _stamp(msg_stamp, time_ns):
+    msg_stamp.sec, msg_stamp.nanosec = divmod(time_ns, 1_000_000_000)
+
+
+class KraftMasterNode(Node):
+    """Publishes the hand controller's state and reflects task wrenches as joint torques."""
+
+    def __init__(self, **kwargs):
+        """Declare and check parameters, open the device and start the loop thread."""
+        super().__init__('kraft_master_node', **kwargs)
+        self.config = self._declare_parameters()
+        self.arm = self.config['arm']
+        self.lengths = kinematics.LinkLengths(*self.config['link_lengths'])
+        self.calibration = self._calibration()
+        self.joint_names = [self.config['joint_prefix'] + n for n in kinematics.JOINT_NAMES]
+        self.frames = {self.config['base_frame']: BASE_FRAME,
+                       self.config['wrist_frame']: WRIST_FRAME}
+        self.force = ForceReflection(
+            force_scale=self.config['force_scale'],
+            torque_limits=tuple(self.config['torque_limits']),
+            coupling=self.config['coupling'],
+            wrench_timeout=self.config['wrench_timeout'],
+            max_force=self.config['max_force'], max_moment=self.config['max_moment'],
+            centre_stiffness=tuple(self.config['centre_stiffness']),
+            centre_damping=tuple(self.config['centre_damping']))
+        self.force.enabled = self.config['force_enabled_at_start']
+
+        state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.joint_pub = self.create_publisher(JointState, 'joint_states', state_qos)
+        self.pose_pub = self.create_publisher(PoseStamped, 'pose', state_qos)
+        self.pots_pub = self.create_publisher(JointState, 'pots', state_qos)
+        self.rate_pub = self.create_publisher(TwistStamped, 'rate_command', state_qos)
+        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', state_qos)
+        self.create_subscription(
+            WrenchStamped, 'wrench', self._on_wrench,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.create_service(SetBool, 'enable_force', self._on_enable_force)
+        self.create_service(Trigger, 'set_center', self._on_set_center)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+        self.simulator = None
+        port = self.config['port']
+        if port == SIM_PORT:
+            port = self._start_simulator()
+        self.device = KmcDevice(
+            port, baudrate=self.config['baud'], codec=self.config['codec'],
+            reply_timeout=self.config['reply_timeout'],
+            torque_scale=tuple(self.config['torque_scale']),
+            torque_limit=tuple(self.config['torque_command_limit']),
+            low_latency=self.config['low_latency'])
+        self.device.open()
+        if not self.device.link_up:
+            self.get_logger().error(f'{self.device.last_error}; retrying with backoff')
+        elif self.device.stats['low_latency_failures']:
+            self.get_logger().warning(self.device.last_error)
+        self._warn_if_wire_limited()
+
+        self.loop = LoopStatistics()
+        self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
+        self.output = None
+        self.pose = None
+        self.cartesian_velocity = None
+        self.centre = None
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name='kraft_master_loop', daemon=True)
+        self._thread.start()
+        self.get_logger().info(
+            f'{self.arm} Kraft Master on {self.config["port"]} at '
+            f'{self.config["loop_rate_hz"]:g} Hz; force output '
+            f'{"enabled" if self.force.enabled else "disabled (call enable_force)"}')
+
+    # -- set-up --------------------------------------------------------------------------
+
+    def _declare_parameters(self):
+        values = {}
+        for name, spec in PARAMETERS.items():
+            try:
+                value = self.declare_parameter(
+                    name, spec.default, _descriptor(name, spec)).value
+            except (rclpy.exceptions.InvalidParameterTypeException,
+                    rclpy.exceptions.InvalidParameterValueException) as error:
+                raise ParameterError(f'parameter {name}: {error}') from None
+            values[name] = check_value(name, value)
+        return values
+
+    def _calibration(self):
+        calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
+                       if key.startswith('calibration.')}
+        try:
+            return ArmCalibration.from_parameters(self.arm, calibration, 'parameters')
+        except CalibrationError as error:
+            raise ParameterError(str(error)) from None
+
+    def _start_simulator(self):
+        from kraft_master_driver.simulator import SimulatedKraftMaster
+        self.simulator = SimulatedKraftMaster(
+            arm=self.arm, calibration=self.calibration,
+            torque_scale=tuple(self.config['torque_scale']),
+            coupling=self.config['coupling'], operator=self.config['sim_operator'],
+            pot_noise_counts=self.config['sim_noise_counts'])
+        path = self.simulator.start()
+        self.get_logger().info(f'simulated hand controller on {path}')
+        return path
+
+    def _warn_if_wire_limited(self):
+        if self.simulator is not None:
+            return
+        wire_rate = self.device.wire_limited_rate()
+        if wire_rate < self.config['loop_rate_hz']:
+            self.get_logger().warning(
+                f'at {self.config["baud"]} baud the link carries at most {wire_rate:.0f} '
+                f'cycles/s, below loop_rate_hz {self.config["loop_rate_hz"]:g}')
+
+    # -- the loop thread -----------------------------------------------------------------
+
+    def _run(self):
+        period_ns = int(1e9 / self.config['loop_rate_hz'])
+        deadline = time.monotonic_ns()
+        rotation = jacobian = None
+        cpu = time.thread_time_ns
+        while self._running:
+            started = time.monotonic_ns()
+            self.loop.record_start(started)
+            try:
+                c0 = cpu()
+                torques = ZERO_TORQUES
+                if jacobian is not None:
+                    self.output = self.force.compute(
+                        rotation, jacobian, started, pose=self.pose, centre=self.centre,
+                        cartesian_velocity=self.cartesian_velocity)
+                    torques = self.output.actuator
+                c1 = cpu()
+                result = self.device.cycle(torques)
+                c2 = cpu()
+                rotation = jacobian = None
+                if result is None:
+                    self.velocity.reset()
+                    c4 = c3 = c2
+                else:
+                    self.loop.round_trips.add(int(result.round_trip_s * 1e9))
+                    theta, velocity, pose, jacobian = self._estimate(result)
+                    rotation = pose[:3, :3]
+                    c3 = cpu()
+                    if self.loop.frames % self.config['publish_decimation'] == 0:
+                        self._publish_state(result, theta, velocity, pose)
+                    c4 = cpu()
+                self.loop.add_cpu(link=c2 - c1, kinematics=c1 - c0 + c3 - c2, publish=c4 - c3)
+            except Exception as error:  # noqa: B902 - any fault must end in zero torque
+                if not self._running or not rclpy.ok(context=self.context):
+                    break
+                rotation = jacobian = None
+                self.loop.internal_errors += 1
+                self.device.cycle(ZERO_TORQUES)
+                self.get_logger().error(f'cycle failed, torques zeroed: {error!r}',
+                                        throttle_duration_sec=1.0)
+            deadline += period_ns
+            now = time.monotonic_ns()
+            if now < deadline:
+                time.sleep((deadline - now) / 1e9)
+            else:
+                # Late: run at once to catch up; skip whole periods that cannot be caught up.
+                self.loop.late += 1
+                skipped = (now - deadline) // period_ns
+                self.loop.missed += skipped
+                deadline += skipped * period_ns
+
+    def _estimate(self, result):
+        """Joint angles, velocity, wrist pose and Jacobian of one pot frame."""
+        theta = self.calibration.pots_to_joints(result.frame.pots)
+        pose, jacobian = kinematics.forward_and_jacobian(theta, self.arm, self.lengths)
+        velocity = self.velocity.update(theta, result.receive_ns)
+        self.pose = pose
+        self.cartesian_velocity = jacobian @ velocity
+        self.loop.frames += 1
+        return theta, velocity, pose, jacobian
+
+    def _effort(self, actuator_nm):
+        torques = list(actuator_nm) + [0.0]
+        if self.config['coupling'] == 'actuator':
+            return kinematics.joint_torques_from_actuator(torques).tolist()
+        return torques
+
+    def _publish_state(self, result, theta, velocity, pose):
+        joint_state = JointState()
+        _stamp(joint_state.header.stamp, result.receive_ns)
+        joint_state.header.frame_id = self.config['base_frame']
+        joint_state.name = self.joint_names
+        joint_state.position = theta.tolist()
+        joint_state.velocity = velocity.tolist()
+        joint_state.effort = self._effort(result.commanded_nm)
+        self.joint_pub.publish(joint_state)
+
+        pose_msg = PoseStamped()
+        pose_msg.header = joint_state.header
+        p = pose_msg.pose
+        p.position.x, p.position.y, p.position.z = pose[:3, 3].tolist()
+        q = p.orientation
+        q.x, q.y, q.z, q.w = kinematics.rotation_to_quaternion(pose)
+        self.pose_pub.publish(pose_msg)
+
+        pots = JointState()
+        pots.header = joint_state.header
+        pots.name = POT_NAMES
+        pots.position = [float(x) for x in result.frame.pots]
+        self.pots_pub.publish(pots)
+
+        if self.config['rate_command_enabled'] and self.centre is not None:
+            linear, angular = rate_command(pose, self.centre, *self.config['rate_gain'])
+            twist = TwistStamped()
+            twist.header = joint_state.header
+            t = twist.twist
+            t.linear.x, t.linear.y, t.linear.z = linear.tolist()
+            t.angular.x, t.angular.y, t.angular.z = angular.tolist()
+            self.rate_pub.publish(twist)
+
+    # -- executor callbacks --------------------------------------------------------------
+
+    def _on_wrench(self, msg):
+        frame = self.frames.get(msg.header.frame_id)
+        w = msg.wrench
+        values = (w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z)
+        tag = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        accepted, reason = self.force.submit(values, frame, time.monotonic_ns(), tag)
+        if frame is None:
+            reason = (f'frame_id {msg.header.frame_id!r} is not one of '
+                      f'{" or ".join(repr(f) for f in self.frames)}')
+        if not accepted:
+            self.get_logger().warning(f'wrench rejected, torques zeroed: {reason}',
+                                      throttle_duration_sec=1.0)
+
+    def _on_enable_force(self, request, response):
+        self.force.enabled = bool(request.data)
+        if not request.data:
+            self.force.clear()
+        response.success = True
+        response.message = 'force output ' + ('enabled' if request.data else 'disabled')
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_set_center(self, request, response):
+        pose = self.pose
+        response.success = pose is not None
+        if pose is None:
+            response.message = 'no pose yet: the device has not answered'
+        else:
+            self.centre = pose.copy()
+            x, y, z = pose[:3, 3]
+            response.message = f'centre set at ({x:.4f}, {y:.4f}, {z:.4f}) m'
+        return response
+
+    def _on_set_parameters(self, parameters):
+        changes = {}
+        for parameter in parameters:
+            spec = PARAMETERS.get(parameter.name)
+            if spec is None:
+                continue
+            if spec.read_only:
+                return SetParametersResult(
+                    successful=False, reason=f'parameter {parameter.name} is read-only')
+            try:
+                changes[parameter.name] = check_value(parameter.name, parameter.value)
+            except ParameterError as error:
+                return SetParametersResult(successful=False, reason=str(error))
+        force_keys = {'force_scale', 'wrench_timeout', 'max_force', 'max_moment',
+                      'torque_limits', 'centre_stiffness', 'centre_damping'}
+        try:
+            self.force.configure(**{key: tuple(value) if isinstance(value, list) else value
+                                    for key, value in changes.items() if key in force_keys})
+        except ValueError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        if 'velocity_cutoff_hz' in changes:
+            self.velocity.cutoff_hz = changes['velocity_cutoff_hz']
+        self.config.update(changes)
+        return SetParametersResult(successful=True)
+
+    def _publish_diagnostics(self):
+        period = self.loop.periods.percentiles_s()
+        round_trip = self.loop.round_trips.percentiles_s()
+        device = self.device.stats
+        link_ok = self.device.link_up
+        values = {
+            'loop rate (Hz)': f'{self.loop.rate_hz():.1f}',
+            **_milliseconds('period', period),
+            **_milliseconds('link round trip', round_trip),
+            'late cycles': str(self.loop.late),
+            'missed cycles': str(self.loop.missed),
+            **{f'cpu per cycle {phase} (us)': f'{1e6 * seconds:.1f}'
+               for phase, seconds in self.loop.cpu_per_cycle().items()},
+            'internal errors': str(self.loop.internal_errors),
+            'force output': 'enabled' if self.force.enabled else 'disabled',
+            'force state': self.output.state if self.output else 'no_state',
+            'calibration': self.calibration.source,
+            'port': self.config['port'],
+        }
+        values.update({f'link {key}': str(value) for key, value in device.items()})
+        values.update({f'force {key}': str(value) for key, value in self.force.counters.items()})
+        status = DiagnosticStatus(
+            name=f'{self.get_name()}: {self.arm} Kraft Master',
+            hardware_id=str(self.config['port']),
+            level=DiagnosticStatus.OK if link_ok else DiagnosticStatus.ERROR,
+            message='running' if link_ok else f'link down: {self.device.last_error}',
+            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
+
+    # -- shutdown ------------------------------------------------------------------------
+
+    def stop(self):
+        """Stop the loop thread, write zero torques, close the port and the simulator."""
+        self._running = False
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        self.device.close()
+        if self.simulator is not None:
+            self.simulator.stop()
+
+
+def main(args=None):
+    """Run the node until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    rclpy.init(args=args)
+    node = None
+    exit_code = 0
+    try:
+        node = KraftMasterNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RuntimeError:
+        # A signal can shut the context down while the executor takes a message.
+        if rclpy.ok():
+            raise
+    except ParameterError as error:
+        print(f'kraft_master_node: {error}', file=sys.stderr)
+        exit_code = 1
+    finally:
+        if node is not None:
+            node.stop()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return exit_code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

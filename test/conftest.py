@@ -1,0 +1,27 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Fixtures for tests that start the installed driver as a real process."""
+import os
+import shutil
+import subprocess
+import sys
+
+from driver_harness import PACKAGE, REPO
+import pytest
+
+
+@pytest.fixture(scope='session')
+def install_prefix(tmp_path_factory):
+    """Build and install the package with colcon, as on a ROS machine; return the prefix."""
+    colcon = shutil.which('colcon', path=os.path.dirname(sys.executable))
+    assert colcon, 'colcon is not installed next to this Python (see requirements.txt)'
+    base = tmp_path_factory.mktemp('colcon')
+    result = subprocess.run(
+        [colcon, '--log-base', str(base / 'log'), 'build', '--base-paths', str(REPO),
+         '--build-base', str(base / 'build'), '--install-base', str(base / 'install')],
+        cwd=base, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    prefix = base / 'install' / PACKAGE
+    assert (prefix / 'share' / PACKAGE / 'hook' / 'ament_prefix_path.dsv').exists(), (
+        'colcon built a plain Python package, not an ament package: check package.xml')
+    return prefix

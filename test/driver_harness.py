@@ -1,0 +1,171 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Test harness: the installed driver as a process, and a client node in the test process."""
+import collections
+import itertools
+import os
+import pathlib
+import random
+import signal
+import subprocess
+import time
+
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import SetBool
+
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+PACKAGE = 'kraft_master_driver'
+_domain_ids = itertools.count(random.Random(os.getpid()).randrange(20, 180, 10))
+
+
+def next_domain_id():
+    """Return a ROS_DOMAIN_ID no other test of this run uses."""
+    return next(_domain_ids) % 230 + 1
+
+
+def wait_for(condition, timeout=20.0, interval=0.01, spin=None):
+    """Poll `condition` (spinning `spin` between polls) until it is truthy or time runs out."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if spin is not None:
+            spin()
+        value = condition()
+        if value:
+            return value
+        time.sleep(0 if spin is not None else interval)
+    raise AssertionError(f'condition not met within {timeout} s: {condition}')
+
+
+def installed_env(prefix, domain_id):
+    """Return the environment `source install/setup.bash` gives, on one DDS domain."""
+    env = dict(os.environ)
+    site = next((prefix / 'lib').glob('python3*/site-packages'))
+    env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(site), env.get('PYTHONPATH')]))
+    env['AMENT_PREFIX_PATH'] = os.pathsep.join(
+        filter(None, [str(prefix), env.get('AMENT_PREFIX_PATH')]))
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+def executable(prefix, name):
+    """Path of an installed executable where `ros2 run kraft_master_driver <name>` looks."""
+    path = prefix / 'lib' / PACKAGE / name
+    assert os.access(path, os.X_OK), f'{path} is not an installed executable'
+    return path
+
+
+class RosClient:
+    """Subscribes to one driver's state, publishes wrenches, calls its services."""
+
+    def __init__(self, domain_id, namespace='/', history=2000):
+        """Join DDS domain `domain_id` and listen to the driver in `namespace`."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node('test_client', namespace=namespace, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.joint_states, self.poses, self.pots = (
+            self._record(msg_type, topic, history, reliable)
+            for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
+                                    (JointState, 'pots')))
+        self.wrench_pub = self.node.create_publisher(
+            WrenchStamped, 'wrench', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.enable_client = self.node.create_client(SetBool, 'enable_force')
+
+    def _record(self, msg_type, topic, history, qos):
+        messages = collections.deque(maxlen=history)
+        self.node.create_subscription(msg_type, topic, lambda msg: messages.append(msg), qos)
+        return messages
+
+    def spin(self, seconds=0.0):
+        """Process callbacks for about `seconds` (at least once)."""
+        deadline = time.monotonic() + seconds
+        self.executor.spin_once(timeout_sec=0.01)
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def wait(self, condition, timeout=20.0):
+        """Spin until `condition()` is truthy."""
+        return wait_for(condition, timeout, spin=self.spin)
+
+    def wait_connected(self):
+        """Wait until the driver publishes state and listens to our wrenches."""
+        self.wait(lambda: self.joint_states and self.wrench_pub.get_subscription_count() > 0)
+
+    def publish_wrench(self, wrench, frame_id):
+        """Publish one WrenchStamped stamped now."""
+        msg = WrenchStamped()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.frame_id = frame_id
+        f, m = msg.wrench.force, msg.wrench.torque
+        f.x, f.y, f.z, m.x, m.y, m.z = (float(v) for v in wrench)
+        self.wrench_pub.publish(msg)
+
+    def stream_wrench(self, wrench, frame_id, seconds, period=0.005):
+        """Publish the wrench every `period` s for `seconds`, spinning in between."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.publish_wrench(wrench, frame_id)
+            self.spin(period)
+
+    def stream_wrench_until(self, wrench, frame_id, condition, timeout=20.0):
+        """Publish the wrench every few ms until `condition()` holds."""
+        def publish_and_check():
+            self.publish_wrench(wrench, frame_id)
+            return condition()
+        return wait_for(publish_and_check, timeout, spin=lambda: self.spin(0.003))
+
+    def set_force_enabled(self, enabled):
+        """Call enable_force and return the response."""
+        assert self.enable_client.wait_for_service(timeout_sec=20.0)
+        future = self.enable_client.call_async(SetBool.Request(data=enabled))
+        self.wait(future.done)
+        return future.result()
+
+    def close(self):
+        """Leave the domain."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+class DriverProcess:
+    """The installed kraft_master_node, started as `ros2 run` would start it."""
+
+    def __init__(self, prefix, domain_id, parameters=(), namespace=None, params_file=None):
+        """Start the node with `-p name:=value` for each of `parameters`."""
+        command = [str(executable(prefix, 'kraft_master_node')), '--ros-args']
+        if namespace:
+            command += ['-r', f'__ns:={namespace}']
+        if params_file:
+            command += ['--params-file', str(params_file)]
+        for name, value in parameters:
+            command += ['-p', f'{name}:={value}']
+        self.process = subprocess.Popen(
+            command, env=installed_env(prefix, domain_id), stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)
+
+    def interrupt(self, sig=signal.SIGINT, timeout=20.0):
+        """Send `sig`, wait for the exit; return (exit code, output)."""
+        self.process.send_signal(sig)
+        output, _ = self.process.communicate(timeout=timeout)
+        return self.process.returncode, output
+
+    def wait_exit(self, timeout=30.0):
+        """Wait for the process to end by itself; return (exit code, output)."""
+        output, _ = self.process.communicate(timeout=timeout)
+        return self.process.returncode, output
+
+    def kill(self):
+        """Make sure the process is gone."""
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.communicate(timeout=10)
