@@ -1,0 +1,328 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The serial link to the KMC 9100: one cycle writes five torques and reads six pots.
+
+The port is a device path or any pyserial URL (socket://host:port, loop://, ...). Link faults
+never raise out of cycle(): an OSError/SerialException, or too many consecutive reply timeouts,
+mark the link down and close the port (after an attempt to write zero torques); later cycles
+reopen it with exponential backoff. Zero torques are written before every close.
+"""
+import math
+import threading
+import time
+from typing import NamedTuple
+
+import serial
+
+from kraft_master_driver.protocol import (
+    AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, INT16_MAX,
+    PotFrame, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND, get_codec)
+
+SEQUENCE_MODULO = 256
+# The port's read timeout: reads wake up at least this often to check the reply deadline.
+READ_SLICE_S = 0.002
+# A write that cannot complete within this time is a link fault. Generous: pyserial also
+# reports a timeout when the thread was merely descheduled that long during a write.
+WRITE_TIMEOUT_S = 1.0
+ZERO_COUNTS = (0,) * AXIS_COUNT
+COUNTER_NAMES = (
+    'cycles',  # commands sent by cycle()
+    'replies',  # matching replies received
+    'timeouts',  # cycles without a matching reply within reply_timeout
+    'stale_replies',  # well-formed replies with the wrong sequence number (discarded)
+    'link_faults',  # times the link was marked down
+    'reconnects',  # successful reopens after a fault or a failed open
+    'failed_opens',  # open attempts that failed
+    'clamped_commands',  # commands with at least one axis clamped to its limit
+    'nonfinite_commands',  # commands with a NaN or infinite torque (sent as zero on that axis)
+    'zero_commands',  # zero-torque commands written before closing the port
+    'device_corrupt_commands',  # replies reporting that the device received a corrupt command
+    'device_command_timeouts',  # replies reporting that the device zeroed its torques
+    'low_latency_failures',  # opens where ASYNC_LOW_LATENCY could not be set
+)
+
+
+class LinkError(Exception):
+    """A misuse of the link that is not a link fault, such as cycling a closed device."""
+
+
+class CycleResult(NamedTuple):
+    """The outcome of one successful cycle."""
+
+    frame: PotFrame
+    receive_ns: int  # time.time_ns() when the reply completed
+    round_trip_s: float  # from just before the write to the reply's last byte
+    commanded_nm: tuple  # the five torques actually sent (after clamping), N*m
+
+
+class KmcDevice:
+    """The host side of the KMC 9100 link over pyserial."""
+
+    def __init__(self, port, baudrate=1_000_000, codec='kraft-default', reply_timeout=0.01,
+                 torque_scale=DEFAULT_TORQUE_SCALE, torque_limit=DEFAULT_TORQUE_LIMIT,
+                 low_latency=False, reconnect_min=0.05, reconnect_max=2.0,
+                 timeouts_before_reconnect=25):
+        """
+        Configure the link; nothing is opened until open().
+
+        port: device path or pyserial URL. baudrate: bits/s. codec: a name in
+        protocol.CODECS. reply_timeout: seconds to wait for each reply. torque_scale: five
+        positive command counts per N*m (axes 1..5). torque_limit: five limits in counts
+        (1..32767). low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is a
+        warning in last_error, not an error). reconnect_min, reconnect_max: backoff bounds
+        (seconds). timeouts_before_reconnect: consecutive timeouts after which the link is
+        treated as dead and reopened.
+        """
+        if not isinstance(port, str) or not port:
+            raise ValueError(f'port must be a device path or pyserial URL, got {port!r}')
+        self.port = port
+        self.baudrate = _positive('baudrate', baudrate)
+        self.codec = get_codec(codec)
+        self.reply_timeout = _positive('reply_timeout', reply_timeout)
+        self.torque_scale = _axis_values(
+            'torque_scale', torque_scale, lambda v: math.isfinite(v) and v > 0,
+            'finite positive counts per N*m')
+        self.torque_limit = _axis_values(
+            'torque_limit', torque_limit, lambda v: 1 <= v <= INT16_MAX and v == int(v),
+            f'integer counts in 1..{INT16_MAX}')
+        self.torque_limit = tuple(int(v) for v in self.torque_limit)
+        self.low_latency = bool(low_latency)
+        self.reconnect_min = _positive('reconnect_min', reconnect_min)
+        self.reconnect_max = _positive('reconnect_max', reconnect_max)
+        if self.reconnect_max < self.reconnect_min:
+            raise ValueError(f'reconnect_max ({reconnect_max}) must not be less than '
+                             f'reconnect_min ({reconnect_min})')
+        if not (isinstance(timeouts_before_reconnect, int) and timeouts_before_reconnect >= 1):
+            raise ValueError('timeouts_before_reconnect must be an integer >= 1, '
+                             f'got {timeouts_before_reconnect!r}')
+        self.timeouts_before_reconnect = timeouts_before_reconnect
+        self.link_up = False
+        self.last_error = ''
+        self._counters = dict.fromkeys(COUNTER_NAMES, 0)
+        self._decoder = self.codec.reply_decoder()
+        self._serial = None
+        self._lock = threading.Lock()
+        self._opened = False
+        self._ever_up = False
+        self._sequence = 0
+        self._consecutive_timeouts = 0
+        self._backoff = self.reconnect_min
+        self._next_attempt = 0.0
+
+    @property
+    def stats(self):
+        """Counters of the link (see COUNTER_NAMES) and the decoder's error kinds."""
+        return {**self._counters, **self._decoder.errors}
+
+    def wire_limited_rate(self):
+        """Return the cycles/s the wire allows at the configured baud (8N1)."""
+        return 1.0 / self.codec.wire_cycle_time(self.baudrate)
+
+    def open(self):
+        """Open the port; return link_up. A failure leaves the link down, retried by cycle()."""
+        with self._lock:
+            self._opened = True
+            self._backoff = self.reconnect_min
+            return self._try_open()
+
+    def close(self):
+        """Write zero torques if the port is open, then close it. Safe to call repeatedly."""
+        with self._lock:
+            self._opened = False
+            self._close_port()
+
+    def __enter__(self):
+        """Open the device (a failed open is retried by cycle())."""
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info):
+        """Zero the torques and close."""
+        self.close()
+
+    def command_counts(self, torques_nm):
+        """
+        Return (counts, clamped, nonfinite) for five torques in N*m (actuator axes 1..5).
+
+        counts = round(scale * torque) clamped to +-limit, a NaN or infinite torque giving 0;
+        clamped and nonfinite tell whether any axis was clamped or was not finite.
+        """
+        try:
+            if isinstance(torques_nm, (str, bytes)):
+                raise TypeError
+            values = [float(value) for value in torques_nm]
+        except (TypeError, ValueError):
+            raise ValueError(f'torques_nm must be {AXIS_COUNT} numbers (N*m), '
+                             f'got {torques_nm!r}') from None
+        if len(values) != AXIS_COUNT:
+            raise ValueError(f'torques_nm must be {AXIS_COUNT} numbers (N*m), got {len(values)}')
+        counts = []
+        clamped = nonfinite = False
+        for value, scale, limit in zip(values, self.torque_scale, self.torque_limit):
+            if not math.isfinite(value):
+                nonfinite = True
+                counts.append(0)
+                continue
+            count = round(value * scale)
+            if count > limit or count < -limit:
+                clamped = True
+                count = limit if count > 0 else -limit
+            counts.append(count)
+        return tuple(counts), clamped, nonfinite
+
+    def cycle(self, torques_nm):
+        """
+        Write the torques (N*m, axes 1..5) and read the matching pot frame.
+
+        Returns a CycleResult, or None on a timeout or while the link is down (a reopen is
+        attempted here when the backoff allows). Raises ValueError for bad torques and
+        LinkError when the device is not open; never raises for link faults.
+        """
+        counts, clamped, nonfinite = self.command_counts(torques_nm)
+        with self._lock:
+            if not self._opened:
+                raise LinkError(f'{self.port}: device is closed; call open() first')
+            return self._cycle(counts, clamped, nonfinite)
+
+    def _cycle(self, counts, clamped, nonfinite):
+        """Carry out one cycle with the lock held (see cycle())."""
+        if not self.link_up and not self._reconnect_due():
+            return None
+        counters = self._counters
+        counters['clamped_commands'] += clamped
+        counters['nonfinite_commands'] += nonfinite
+        sequence = self._next_sequence()
+        command = self.codec.encode_command(sequence, counts)
+        try:
+            start_ns = time.perf_counter_ns()
+            self._serial.write(command)
+            counters['cycles'] += 1
+            frame = self._read_reply(sequence, start_ns + int(self.reply_timeout * 1e9))
+        except (OSError, serial.SerialException) as exc:
+            self._link_fault(f'{self.port}: {exc}')
+            return None
+        if frame is None:
+            counters['timeouts'] += 1
+            self._consecutive_timeouts += 1
+            if self._consecutive_timeouts >= self.timeouts_before_reconnect:
+                self._link_fault(f'{self.port}: no reply to {self._consecutive_timeouts} '
+                                 'consecutive commands')
+            return None
+        receive_ns = time.time_ns()
+        round_trip_s = (time.perf_counter_ns() - start_ns) * 1e-9
+        self._consecutive_timeouts = 0
+        counters['replies'] += 1
+        status = frame.status
+        if status & STATUS_CORRUPT_COMMAND:
+            counters['device_corrupt_commands'] += 1
+        if status & STATUS_COMMAND_TIMEOUT:
+            counters['device_command_timeouts'] += 1
+        commanded_nm = tuple(count / scale for count, scale in zip(counts, self.torque_scale))
+        return CycleResult(frame, receive_ns, round_trip_s, commanded_nm)
+
+    def _read_reply(self, sequence, deadline_ns):
+        """Read until the reply with this sequence arrives (return it) or the deadline (None)."""
+        port = self._serial
+        decoder = self._decoder
+        reply_size = self.codec.reply_size
+        want = reply_size - decoder.pending
+        while True:
+            data = port.read(want)
+            if data:
+                for frame in decoder.feed(data):
+                    if frame.sequence == sequence:
+                        return frame
+                    self._counters['stale_replies'] += 1
+            if time.perf_counter_ns() >= deadline_ns:
+                return None
+            want = max(reply_size - decoder.pending, port.in_waiting)
+
+    def _next_sequence(self):
+        """Advance and return the command sequence number."""
+        self._sequence = (self._sequence + 1) % SEQUENCE_MODULO
+        return self._sequence
+
+    def _reconnect_due(self):
+        """Reopen the port if the backoff allows; return link_up."""
+        if time.monotonic() < self._next_attempt:
+            return False
+        self._backoff = min(self._backoff * 2, self.reconnect_max)
+        return self._try_open()
+
+    def _try_open(self):
+        """Open the port once; on failure schedule the next attempt. Return link_up."""
+        self._close_port()
+        try:
+            # exclusive: a second driver on the same port fails to open instead of stealing
+            # half of the replies (an advisory lock, honoured by pyserial users).
+            port = serial.serial_for_url(
+                self.port, baudrate=self.baudrate, timeout=min(self.reply_timeout, READ_SLICE_S),
+                write_timeout=max(self.reply_timeout, WRITE_TIMEOUT_S), exclusive=True)
+            port.reset_input_buffer()
+        except (OSError, serial.SerialException) as exc:
+            self._counters['failed_opens'] += 1
+            self.last_error = f'{self.port}: cannot open: {exc}'
+            self._next_attempt = time.monotonic() + self._backoff
+            return False
+        self._serial = port
+        self._decoder.reset()
+        self._consecutive_timeouts = 0
+        self._backoff = self.reconnect_min
+        if self._ever_up or self._counters['failed_opens']:
+            self._counters['reconnects'] += 1
+        self._ever_up = True
+        self.link_up = True
+        if self.low_latency:
+            self._set_low_latency(port)
+        return True
+
+    def _set_low_latency(self, port):
+        """Ask the driver for ASYNC_LOW_LATENCY; a failure is recorded, not raised."""
+        try:
+            port.set_low_latency_mode(True)
+        except (AttributeError, NotImplementedError, ValueError, OSError) as exc:
+            self._counters['low_latency_failures'] += 1
+            self.last_error = f'{self.port}: warning: low latency mode not set: {exc}'
+
+    def _link_fault(self, reason):
+        """Mark the link down, close the port, schedule a reopen."""
+        self._counters['link_faults'] += 1
+        self.last_error = reason
+        self._close_port()
+        self._next_attempt = time.monotonic() + self._backoff
+
+    def _close_port(self):
+        """Write zero torques (best effort) and close the port if it is open."""
+        port, self._serial = self._serial, None
+        self.link_up = False
+        if port is None:
+            return
+        try:
+            port.write(self.codec.encode_command(self._next_sequence(), ZERO_COUNTS))
+            self._counters['zero_commands'] += 1
+        except (OSError, serial.SerialException):
+            pass  # the link is already broken; the device zeroes on its own command timeout
+        try:
+            port.close()
+        except (OSError, serial.SerialException):
+            pass
+
+
+def _positive(name, value):
+    """Return value if it is a finite positive number, else raise ValueError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            math.isfinite(value) and value > 0):
+        raise ValueError(f'{name} must be a finite positive number, got {value!r}')
+    return value
+
+
+def _axis_values(name, values, valid, expected):
+    """Return values as a tuple of AXIS_COUNT floats satisfying valid(); ValueError naming name."""
+    try:
+        result = tuple(float(value) for value in values)
+    except (TypeError, ValueError):
+        result = ()
+    if len(result) != AXIS_COUNT or not all(valid(value) for value in result):
+        raise ValueError(f'{name} must be {AXIS_COUNT} {expected}, got {values!r}')
+    return result
