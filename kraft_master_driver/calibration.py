@@ -10,12 +10,12 @@ absolute elbow link angle th2 + th3; POT4 reads wrist pitch th5 and POT5 wrist y
 ROS 2 parameter file that the node takes unchanged with --params-file.
 """
 import math
+import numbers
 from typing import NamedTuple
 
+from kraft_master_driver.kinematics import ARMS
 import numpy as np
 import yaml
-
-from kraft_master_driver.kinematics import ARMS
 
 POT_COUNT = 6
 POT_MAX = 4095
@@ -52,20 +52,24 @@ class ArmCalibration:
     def __init__(self, arm, pot_a, pot_b, angle_a, angle_b, source='calibration'):
         """Build from per-pot arrays (pot order, counts and radians); validate all of it."""
         if arm not in ARMS:
-            raise CalibrationError(f"{source}: arm: unknown arm {arm!r}, expected 'right' or 'left'")
+            raise CalibrationError(
+                f"{source}: arm: unknown arm {arm!r}, expected 'right' or 'left'")
         self.arm = arm
         self.source = source
         self.pot_a = _vector(pot_a, source, 'pot_a', 0.0, POT_MAX, 'counts')
         self.pot_b = _vector(pot_b, source, 'pot_b', 0.0, POT_MAX, 'counts')
         self.angle_a = _vector(angle_a, source, 'angle_a', -2 * math.pi, 2 * math.pi, 'rad')
         self.angle_b = _vector(angle_b, source, 'angle_b', -2 * math.pi, 2 * math.pi, 'rad')
-        for key, first, second in (('pot_b', self.pot_a, self.pot_b),
-                                   ('angle_b', self.angle_a, self.angle_b)):
+        # Named by their parameter keys; angles are shown in the parameters' degrees.
+        for key, first, second, shown in (('pot_b', self.pot_a, self.pot_b, float),
+                                          ('angle_b_deg', self.angle_a, self.angle_b,
+                                           math.degrees)):
             equal = np.flatnonzero(first == second)
             if equal.size:
+                pot = equal[0]
                 raise CalibrationError(
-                    f'{source}: calibration.{key}: POT{equal[0] + 1} has its two calibration '
-                    f'points equal ({first[equal[0]]:g}); the line through them is undefined')
+                    f'{source}: calibration.{key}: POT{pot + 1} has its two calibration '
+                    f'points equal ({shown(first[pot]):g}); the line through them is undefined')
         self.slope = (self.angle_b - self.angle_a) / (self.pot_b - self.pot_a)
         self.offset = self.angle_a - self.slope * self.pot_a
 
@@ -73,7 +77,8 @@ class ArmCalibration:
     def nominal(cls, arm):
         """Return the paper's calibration of the right or left unit (Tables IV and V)."""
         if arm not in _NOMINAL_POTS:
-            raise CalibrationError(f"nominal: arm: unknown arm {arm!r}, expected 'right' or 'left'")
+            raise CalibrationError(
+                f"nominal: arm: unknown arm {arm!r}, expected 'right' or 'left'")
         pot_a, pot_b = _NOMINAL_POTS[arm]
         angle_a, angle_b = (np.radians(a) for a in _NOMINAL_ANGLES_DEG)
         return cls(arm, pot_a, pot_b, angle_a, angle_b, source=f'nominal {arm} arm')
@@ -102,16 +107,19 @@ class ArmCalibration:
         The fitted line is stored as two points at the smallest and largest count seen.
         """
         if len(samples) != POT_COUNT:
-            raise CalibrationError(f'{source}: need samples for {POT_COUNT} pots, got {len(samples)}')
+            raise CalibrationError(
+                f'{source}: need samples for {POT_COUNT} pots, got {len(samples)}')
         pot_a, pot_b, angle_a, angle_b = (np.empty(POT_COUNT) for _ in range(4))
         rms, worst, count = np.empty(POT_COUNT), np.empty(POT_COUNT), np.empty(POT_COUNT, int)
         for i, (counts, angles) in enumerate(samples):
             counts = np.asarray(counts, dtype=float).ravel()
             angles = np.asarray(angles, dtype=float).ravel()
-            if counts.shape != angles.shape or np.ptp(counts, initial=0.0) == 0.0:
+            if counts.shape != angles.shape or counts.size < 2 or counts.min() == counts.max():
                 raise CalibrationError(
                     f'{source}: POT{i + 1}: need matching counts and angles at two or more '
                     f'distinct counts, got {counts.size} counts and {angles.size} angles')
+            if not (np.all(np.isfinite(counts)) and np.all(np.isfinite(angles))):
+                raise CalibrationError(f'{source}: POT{i + 1}: samples must be finite numbers')
             slope, offset = np.polyfit(counts, angles, 1)
             residual = angles - (offset + slope * counts)
             pot_a[i], pot_b[i] = counts.min(), counts.max()
@@ -178,6 +186,8 @@ def read_parameter_file(path):
             document = yaml.safe_load(stream)
     except OSError as error:
         raise CalibrationError(f'{path}: cannot read: {error.strerror}') from error
+    except UnicodeDecodeError as error:
+        raise CalibrationError(f'{path}: not UTF-8 text: {error}') from error
     except yaml.YAMLError as error:
         raise CalibrationError(f'{path}: not valid YAML: {error}') from error
     if not isinstance(document, dict) or len(document) != 1:
@@ -190,19 +200,19 @@ def read_parameter_file(path):
 
 
 def _vector(values, source, key, low, high, unit):
-    try:
-        array = np.array(values, dtype=float)
-    except (TypeError, ValueError):
-        raise CalibrationError(f'{source}: calibration.{key}: expected {POT_COUNT} numbers, '
-                               f'got {values!r}') from None
-    if array.shape != (POT_COUNT,):
-        raise CalibrationError(f'{source}: calibration.{key}: expected {POT_COUNT} numbers, '
-                               f'got {array.size}')
-    if isinstance(values, (list, tuple)) and any(isinstance(v, bool) for v in values):
-        raise CalibrationError(f'{source}: calibration.{key}: expected numbers, got a boolean')
+    where = f'{source}: calibration.{key}'
+    items = values.tolist() if isinstance(values, np.ndarray) else values
+    if isinstance(items, (str, bytes, dict)) or not hasattr(items, '__iter__'):
+        raise CalibrationError(f'{where}: expected a list of {POT_COUNT} numbers, got {values!r}')
+    items = list(items)
+    if len(items) != POT_COUNT:
+        raise CalibrationError(f'{where}: expected {POT_COUNT} numbers, got {len(items)}')
+    for pot, item in enumerate(items, 1):
+        if isinstance(item, bool) or not isinstance(item, numbers.Real):
+            raise CalibrationError(f'{where}: POT{pot} is {item!r}, expected a number')
+    array = np.array(items, dtype=float)
     bad = np.flatnonzero(~np.isfinite(array) | (array < low) | (array > high))
     if bad.size:
-        raise CalibrationError(f'{source}: calibration.{key}: POT{bad[0] + 1} is '
-                               f'{array[bad[0]]:g}, expected a finite value within '
-                               f'{low:g}..{high:g} {unit}')
+        raise CalibrationError(f'{where}: POT{bad[0] + 1} is {array[bad[0]]:g}, expected a '
+                               f'finite value within {low:g}..{high:g} {unit}')
     return array

@@ -59,7 +59,11 @@ def _signed_lengths(arm, lengths):
 
 
 def _factored_terms(trig, arm, lengths):
-    """Appendix B terms; works elementwise on floats or on numpy arrays alike."""
+    """
+    Return the entries of 0T6 and 0J, row by row, from the Appendix B terms.
+
+    Works elementwise on floats or on numpy arrays alike; constant entries stay floats.
+    """
     c1, s1, c2, s2, c23, s23, c4, s4, c5, s5, c6, s6 = trig
     l1, l2, l3, l4 = _signed_lengths(arm, lengths)
     ki = c1 * c23
@@ -83,24 +87,25 @@ def _factored_terms(trig, arm, lengths):
     kd = -k3 * c5 - kn * s1
     ke = k10 * s1 - l3 * c1
     kf = k10 * c1 + l3 * s1
-    rotation_position = (
-        (k2 * s6 + ka * c6, -ka * s6 + k2 * c6, kc, kf),
-        (k4 * s6 + kb * c6, -kb * s6 + k4 * c6, kd, ke),
-        (k0 * s6 + k6 * c6, -k6 * s6 + k0 * c6, k5, k9),
+    pose_entries = (
+        k2 * s6 + ka * c6, -ka * s6 + k2 * c6, kc, kf,
+        k4 * s6 + kb * c6, -kb * s6 + k4 * c6, kd, ke,
+        k0 * s6 + k6 * c6, -k6 * s6 + k0 * c6, k5, k9,
+        0.0, 0.0, 0.0, 1.0,
     )
-    jacobian_rows = (
-        (-ke, -k9 * c1, -k7 * c1, 0.0, 0.0, 0.0),
-        (kf, -k9 * s1, -k7 * s1, 0.0, 0.0, 0.0),
-        (0.0, k10, k8, 0.0, 0.0, 0.0),
-        (0.0, s1, s1, -c1 * s23, k2, kc),
-        (0.0, -c1, -c1, -s1 * s23, k4, kd),
-        (1.0, 0.0, 0.0, c23, k0, k5),
+    jacobian_entries = (
+        -ke, -k9 * c1, -k7 * c1, 0.0, 0.0, 0.0,
+        kf, -k9 * s1, -k7 * s1, 0.0, 0.0, 0.0,
+        0.0, k10, k8, 0.0, 0.0, 0.0,
+        0.0, s1, s1, -c1 * s23, k2, kc,
+        0.0, -c1, -c1, -s1 * s23, k4, kd,
+        1.0, 0.0, 0.0, c23, k0, k5,
     )
-    return rotation_position, jacobian_rows
+    return pose_entries, jacobian_entries
 
 
 def _scalar_trig(theta):
-    th1, th2, th3, th4, th5, th6 = (float(t) for t in theta)
+    th1, th2, th3, th4, th5, th6 = theta.tolist()
     th23 = th2 + th3
     return (math.cos(th1), math.sin(th1), math.cos(th2), math.sin(th2),
             math.cos(th23), math.sin(th23), math.cos(th4), math.sin(th4),
@@ -108,40 +113,34 @@ def _scalar_trig(theta):
 
 
 def _batch_trig(theta):
-    angles = np.column_stack((theta[:, :2], theta[:, 1] + theta[:, 2], theta[:, 3:]))
+    # One contiguous row per angle keeps every later elementwise operation contiguous.
+    angles = theta.T.copy()
+    angles[2] += angles[1]
     cos, sin = np.cos(angles), np.sin(angles)
-    return tuple(x for i in range(6) for x in (cos[:, i], sin[:, i]))
-
-
-_HOMOGENEOUS_ROW = (0.0, 0.0, 0.0, 1.0)
-
-
-def _fill(out, rows):
-    for i, row in enumerate(rows):
-        for j, value in enumerate(row):
-            out[:, i, j] = value
+    return tuple(x for i in range(6) for x in (cos[i], sin[i]))
 
 
 def _batch(theta, arm, lengths, want_pose, want_jacobian):
     n = theta.shape[0]
-    poses = np.empty((n, 4, 4)) if want_pose else None
-    jacobians = np.empty((n, 6, 6)) if want_jacobian else None
+    poses = np.empty((n, 16)) if want_pose else None
+    jacobians = np.empty((n, 36)) if want_jacobian else None
     for start in range(0, n, BATCH_CHUNK):
         chunk = slice(start, start + BATCH_CHUNK)
-        rotation_position, jacobian_rows = _factored_terms(
-            _batch_trig(theta[chunk]), arm, lengths)
-        if want_pose:
-            _fill(poses[chunk], rotation_position + (_HOMOGENEOUS_ROW,))
-        if want_jacobian:
-            _fill(jacobians[chunk], jacobian_rows)
-    return poses, jacobians
+        entries_by_output = zip((poses, jacobians),
+                                _factored_terms(_batch_trig(theta[chunk]), arm, lengths))
+        for out, entries in entries_by_output:
+            if out is not None:
+                for column, value in enumerate(entries):
+                    out[chunk, column] = value
+    return (None if poses is None else poses.reshape(n, 4, 4),
+            None if jacobians is None else jacobians.reshape(n, 6, 6))
 
 
-def _as_joint_array(theta):
-    theta = np.asarray(theta, dtype=float)
-    if theta.shape[-1:] != (6,) or theta.ndim not in (1, 2):
-        raise ValueError(f'joint angles must have shape (6,) or (N, 6), got {theta.shape}')
-    return theta
+def _as_six_vectors(values, what='joint angles'):
+    values = np.asarray(values, dtype=float)
+    if values.shape[-1:] != (6,) or values.ndim not in (1, 2):
+        raise ValueError(f'{what} must have shape (6,) or (N, 6), got {values.shape}')
+    return values
 
 
 def forward_and_jacobian(theta, arm='right', lengths=None):
@@ -151,29 +150,27 @@ def forward_and_jacobian(theta, arm='right', lengths=None):
     theta (6,) gives a 4x4 and a 6x6 array; theta (N, 6) gives (N, 4, 4) and (N, 6, 6).
     The Jacobian rows are (vx, vy, vz, wx, wy, wz) of the origin of {6} in {0}.
     """
-    theta = _as_joint_array(theta)
+    theta = _as_six_vectors(theta)
     if theta.ndim == 2:
         return _batch(theta, arm, lengths, True, True)
-    rotation_position, jacobian_rows = _factored_terms(_scalar_trig(theta), arm, lengths)
-    return np.array(rotation_position + (_HOMOGENEOUS_ROW,)), np.array(jacobian_rows)
+    pose_entries, jacobian_entries = _factored_terms(_scalar_trig(theta), arm, lengths)
+    return np.array(pose_entries).reshape(4, 4), np.array(jacobian_entries).reshape(6, 6)
 
 
 def forward(theta, arm='right', lengths=None):
     """Return 0T6, the homogeneous transform of the wrist frame {6} in {0} (metres)."""
-    theta = _as_joint_array(theta)
+    theta = _as_six_vectors(theta)
     if theta.ndim == 2:
         return _batch(theta, arm, lengths, True, False)[0]
-    rotation_position, _ = _factored_terms(_scalar_trig(theta), arm, lengths)
-    return np.array(rotation_position + (_HOMOGENEOUS_ROW,))
+    return np.array(_factored_terms(_scalar_trig(theta), arm, lengths)[0]).reshape(4, 4)
 
 
 def jacobian(theta, arm='right', lengths=None):
     """Return 0J, the 6x6 Jacobian of the origin of {6} expressed in {0}."""
-    theta = _as_joint_array(theta)
+    theta = _as_six_vectors(theta)
     if theta.ndim == 2:
         return _batch(theta, arm, lengths, False, True)[1]
-    _, jacobian_rows = _factored_terms(_scalar_trig(theta), arm, lengths)
-    return np.array(jacobian_rows)
+    return np.array(_factored_terms(_scalar_trig(theta), arm, lengths)[1]).reshape(6, 6)
 
 
 def dh_transform(alpha, a, d, theta):
@@ -209,8 +206,8 @@ def joint_torques(theta, wrench, arm='right', lengths=None):
     wrench is (fx, fy, fz, mx, my, mz) in {0}, acting at the origin of {6}, in N and N*m.
     Accepts (6,) or batches (N, 6) of both.
     """
-    jac = jacobian(theta, arm, lengths)
-    return np.einsum('...ji,...j->...i', jac, np.asarray(wrench, dtype=float))
+    wrench = _as_six_vectors(wrench, 'wrench')
+    return np.einsum('...ji,...j->...i', jacobian(theta, arm, lengths), wrench)
 
 
 def actuator_torques(joint_tau):
@@ -243,7 +240,9 @@ def joint_limits(theta2=None):
 
 def limit_violations(theta, tolerance=1e-9):
     """Return one message per joint of `theta` (6,) outside its Table II range; [] if none."""
-    theta = _as_joint_array(theta)
+    theta = _as_six_vectors(theta)
+    if theta.ndim != 1:
+        raise ValueError(f'limit_violations takes one joint vector (6,), got {theta.shape}')
     lower, upper = joint_limits(theta[1])
     messages = []
     for name, value, low, high in zip(JOINT_NAMES, theta, lower, upper):
