@@ -55,7 +55,7 @@ def run_subscriber(out_path, duration):
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import ExternalShutdownException
-    from rclpy.experimental import EventsExecutor
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
 
@@ -84,7 +84,7 @@ def run_subscriber(out_path, duration):
     qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     node.create_subscription(JointState, 'joint_states', on_state, qos)
     node.create_subscription(DiagnosticArray, 'diagnostics', on_diagnostics, 10)
-    executor = EventsExecutor()
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         executor.spin()
@@ -197,19 +197,25 @@ def run(rate_hz, duration, baud, domain_id, workdir):
     if baud:
         node_args += ['-p', f'baud:={baud}']
     driver = subprocess.Popen([sys.executable, '-m', 'kraft_master_driver.node', *node_args],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                              env=env, stdout=subprocess.DEVNULL)
     subscriber_out = str(workdir / f'subscriber_{tag}')
     publisher_out = str(workdir / f'publisher_{tag}.npy')
     peers = [subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
                                '--duration', str(duration)], env=env)
              for role, out in (('subscriber', subscriber_out), ('publisher', publisher_out))]
-    wait_ready([subscriber_out + '.ready', publisher_out + '.ready'], (*peers, driver, sim))
-    cpu_start, wall_start = process_cpu_seconds(driver.pid), time.time_ns()
-    time.sleep(duration)
-    cpu_end, wall_end = process_cpu_seconds(driver.pid), time.time_ns()
-    for process in (*peers, driver, sim):
-        process.send_signal(signal.SIGINT)
-        process.wait(timeout=30)
+    processes = (*peers, driver, sim)
+    try:
+        wait_ready([subscriber_out + '.ready', publisher_out + '.ready'], processes)
+        cpu_start, wall_start = process_cpu_seconds(driver.pid), time.time_ns()
+        time.sleep(duration)
+        cpu_end, wall_end = process_cpu_seconds(driver.pid), time.time_ns()
+    finally:
+        for process in processes:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
 
     states = np.load(subscriber_out + '.npy')
     with open(subscriber_out + '.json') as stream:

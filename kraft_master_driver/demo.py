@@ -11,12 +11,11 @@ import math
 import sys
 import time
 
-import numpy as np
-
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.simulator import SimulatedKraftMaster
+import numpy as np
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS

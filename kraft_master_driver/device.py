@@ -13,11 +13,10 @@ import threading
 import time
 from typing import NamedTuple
 
-import serial
-
 from kraft_master_driver.protocol import (
-    AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, INT16_MAX,
-    PotFrame, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND, get_codec)
+    AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, INT16_MAX, PotFrame,
+    STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
+import serial
 
 SEQUENCE_MODULO = 256
 # The port's read timeout: reads wake up at least this often to check the reply deadline.
@@ -119,7 +118,7 @@ class KmcDevice:
         """Return the cycles/s the wire allows at the configured baud (8N1)."""
         return 1.0 / self.codec.wire_cycle_time(self.baudrate)
 
-    def open(self):
+    def open(self):  # noqa: A003 - the name pyserial and file objects use
         """Open the port; return link_up. A failure leaves the link down, retried by cycle()."""
         with self._lock:
             self._opened = True

@@ -40,6 +40,7 @@ class LoopStatistics:
         self.periods = RecentSamples(window)
         self.round_trips = RecentSamples(window)
         self.frames = 0
+        self.published = 0
         self.late = 0
         self.missed = 0
         self.internal_errors = 0

@@ -15,6 +15,12 @@ from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from kraft_master_driver import kinematics
+from kraft_master_driver.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.device import KmcDevice
+from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
+from kraft_master_driver.protocol import CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE
+from kraft_master_driver.teleop import BASE_FRAME, ForceReflection, rate_command, WRIST_FRAME
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 import rclpy
@@ -24,14 +30,6 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
-
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import ArmCalibration, CalibrationError
-from kraft_master_driver.device import KmcDevice
-from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
-from kraft_master_driver.protocol import (
-    CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE)
-from kraft_master_driver.teleop import BASE_FRAME, ForceReflection, rate_command, WRIST_FRAME
 
 SIM_PORT = 'sim'
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
@@ -91,6 +89,9 @@ PARAMETERS = {
                         read_only=False, low=0.0, high=10.0),
     'wrench_timeout': Spec(0.05, 'A wrench older than this gives zero torque (s).',
                            read_only=False, low=0.001, high=5.0),
+    'max_stamp_skew': Spec(1.0, 'Wrenches stamped further than this from the system clock are '
+                           'rejected (s); an unset stamp (0) is accepted.',
+                           read_only=False, low=0.001, high=1e9),
     'max_force': Spec(200.0, 'Wrenches with a larger force are rejected (N).',
                       read_only=False, low=0.0, high=1e4),
     'max_moment': Spec(20.0, 'Wrenches with a larger moment are rejected (N*m).',
@@ -311,6 +312,7 @@ class KraftMasterNode(Node):
                     c3 = cpu()
                     if self.loop.frames % self.config['publish_decimation'] == 0:
                         self._publish_state(result, theta, velocity, pose)
+                        self.loop.published += 1
                     c4 = cpu()
                 self.loop.add_cpu(link=c2 - c1, kinematics=c1 - c0 + c3 - c2, publish=c4 - c3)
             except Exception as error:  # noqa: B902 - any fault must end in zero torque
@@ -388,6 +390,14 @@ class KraftMasterNode(Node):
         w = msg.wrench
         values = (w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z)
         tag = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        skew = time.time_ns() - tag
+        if tag and abs(skew) > self.config['max_stamp_skew'] * 1e9:
+            self.force.reject('bad_timestamp', tag)
+            self.get_logger().warning(
+                f'wrench rejected, torques zeroed: its stamp is {skew / 1e9:+.3f} s off this '
+                f'clock (max_stamp_skew {self.config["max_stamp_skew"]:g} s)',
+                throttle_duration_sec=1.0)
+            return
         accepted, reason = self.force.submit(values, frame, time.monotonic_ns(), tag)
         if frame is None:
             reason = (f'frame_id {msg.header.frame_id!r} is not one of '
@@ -450,6 +460,8 @@ class KraftMasterNode(Node):
             'loop rate (Hz)': f'{self.loop.rate_hz():.1f}',
             **_milliseconds('period', period),
             **_milliseconds('link round trip', round_trip),
+            'pot frames received': str(self.loop.frames),
+            'pot frames published': str(self.loop.published),
             'late cycles': str(self.loop.late),
             'missed cycles': str(self.loop.missed),
             **{f'cpu per cycle {phase} (us)': f'{1e6 * seconds:.1f}'

@@ -40,14 +40,13 @@ import time
 import tty
 from typing import NamedTuple
 
-import numpy as np
-
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration, CalibrationError, POT_MAX
 from kraft_master_driver.protocol import (
     AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, INT16_MAX,
     STATUS_AMPLIFIERS_ENABLED, STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT,
     STATUS_CORRUPT_COMMAND)
+import numpy as np
 
 OPERATORS = ('hold', 'sweep', 'random_walk')
 COUPLINGS = ('actuator', 'joint')

@@ -10,16 +10,15 @@ hands over one immutable object in one assignment, so the hot path takes no lock
 Zero torque is the answer to every doubt: force output disabled, no wrench yet, a stale or
 rejected wrench, or a non-finite result all give exactly zero torques, with a state saying why.
 """
+from functools import partial
 import math
 import numbers
 import operator
 import threading
-from functools import partial
 from typing import NamedTuple
 
-import numpy as np
-
 from kraft_master_driver import kinematics
+import numpy as np
 
 WRIST_FRAME, BASE_FRAME = 'wrist', 'base'
 FRAMES = (BASE_FRAME, WRIST_FRAME)
@@ -261,9 +260,13 @@ class ForceReflection:
         if key is None:
             self._latest = WrenchInput(values, frame, int(received_ns), tag)
             return True, ''
+        self.reject(key, tag)
+        return False, f'{key}: {detail}'
+
+    def reject(self, key, tag=None):
+        """Reject an input for a reason the caller found (a key of `rejections`): zero torque."""
         self._latest = Rejection(key, tag)
         self.rejections[key] += 1
-        return False, f'{key}: {detail}'
 
     def _check(self, wrench, frame, received_ns):
         """Return (rejection key or None, detail, the wrench as 6 floats)."""
@@ -361,10 +364,10 @@ class ForceReflection:
             self._non_finite_results += 1
             return self._idle(REJECTED)
         limits = settings.torque_limits
-        saturated = any([abs(tau) > limit for tau, limit in zip(torques, limits)])
+        saturated = any(abs(tau) > limit for tau, limit in zip(torques, limits))
         if saturated:
             # One factor for the whole vector keeps its direction; the clamp only trims rounding.
-            peak = max([abs(tau) / limit for tau, limit in zip(torques, limits)])
+            peak = max(abs(tau) / limit for tau, limit in zip(torques, limits))
             torques = [min(max(tau / peak, -limit), limit) for tau, limit in zip(torques, limits)]
             self._saturated_cycles += 1
             if not self._was_saturated:

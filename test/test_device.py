@@ -9,12 +9,11 @@ import socket
 import threading
 import time
 
-import pytest
-
 from kraft_master_driver.calibration import POT_MAX
 from kraft_master_driver.device import CycleResult, KmcDevice, LinkError
 from kraft_master_driver.protocol import KraftDefaultCodec, STATUS_AMPLIFIERS_ENABLED
 from kraft_master_driver.simulator import SimulatedKraftMaster
+import pytest
 
 SCALE = (1000.0, 500.0, 2000.0, 250.0, 100.0)
 LIMIT = (3000, 2000, 1000, 500, 300)
@@ -62,8 +61,8 @@ def sim():
 
 
 # The test's scales and limits, a generous reply timeout and quick reconnects.
-DEVICE_OPTIONS = dict(torque_scale=SCALE, torque_limit=LIMIT, reply_timeout=0.5,
-                      reconnect_min=0.01, reconnect_max=0.1)
+DEVICE_OPTIONS = {'torque_scale': SCALE, 'torque_limit': LIMIT, 'reply_timeout': 0.5,
+                  'reconnect_min': 0.01, 'reconnect_max': 0.1}
 
 
 def make_device(port, **options):
@@ -241,7 +240,7 @@ def test_close_from_another_thread_ends_the_loop_with_zero_torques(sim):
 
 
 def test_garbage_flood_is_skipped(sim):
-    device = make_device(sim.port, reply_timeout=0.05, timeouts_before_reconnect=1000)
+    device = make_device(sim.port, reply_timeout=0.5, timeouts_before_reconnect=1000)
     for _ in range(10):
         sim.send_garbage(3000)
         device.cycle((0.1,) * 5)
@@ -341,20 +340,20 @@ def test_wire_limited_rate():
 
 
 @pytest.mark.parametrize('options, name', [
-    (dict(torque_scale=(1.0,) * 4), 'torque_scale'),
-    (dict(torque_scale=(1.0, 1.0, 1.0, 1.0, math.nan)), 'torque_scale'),
-    (dict(torque_scale=(1.0, 1.0, 1.0, 1.0, -1.0)), 'torque_scale'),
-    (dict(torque_scale=(1.0, 1.0, 1.0, 1.0, math.inf)), 'torque_scale'),
-    (dict(torque_limit=(100,) * 6), 'torque_limit'),
-    (dict(torque_limit=(100, 100, 100, 100, 0)), 'torque_limit'),
-    (dict(torque_limit=(100, 100, 100, 100, 32768)), 'torque_limit'),
-    (dict(torque_limit=(100, 100, 100, 100, 10.5)), 'torque_limit'),
-    (dict(torque_limit='fast'), 'torque_limit'),
-    (dict(reply_timeout=0), 'reply_timeout'),
-    (dict(baudrate=-9600), 'baudrate'),
-    (dict(codec='kmc-real'), 'kraft-default'),
-    (dict(reconnect_min=1.0, reconnect_max=0.5), 'reconnect_max'),
-    (dict(timeouts_before_reconnect=0), 'timeouts_before_reconnect'),
+    ({'torque_scale': (1.0,) * 4}, 'torque_scale'),
+    ({'torque_scale': (1.0, 1.0, 1.0, 1.0, math.nan)}, 'torque_scale'),
+    ({'torque_scale': (1.0, 1.0, 1.0, 1.0, -1.0)}, 'torque_scale'),
+    ({'torque_scale': (1.0, 1.0, 1.0, 1.0, math.inf)}, 'torque_scale'),
+    ({'torque_limit': (100,) * 6}, 'torque_limit'),
+    ({'torque_limit': (100, 100, 100, 100, 0)}, 'torque_limit'),
+    ({'torque_limit': (100, 100, 100, 100, 32768)}, 'torque_limit'),
+    ({'torque_limit': (100, 100, 100, 100, 10.5)}, 'torque_limit'),
+    ({'torque_limit': 'fast'}, 'torque_limit'),
+    ({'reply_timeout': 0}, 'reply_timeout'),
+    ({'baudrate': -9600}, 'baudrate'),
+    ({'codec': 'kmc-real'}, 'kraft-default'),
+    ({'reconnect_min': 1.0, 'reconnect_max': 0.5}, 'reconnect_max'),
+    ({'timeouts_before_reconnect': 0}, 'timeouts_before_reconnect'),
 ])
 def test_bad_arguments_are_rejected(options, name):
     with pytest.raises(ValueError, match=name):

@@ -6,13 +6,12 @@ import signal
 import time
 
 from driver_harness import DriverProcess, next_domain_id, RosClient
-import numpy as np
-import pytest
-
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.protocol import DEFAULT_TORQUE_SCALE
 from kraft_master_driver.simulator import SimulatedKraftMaster
+import numpy as np
+import pytest
 
 pytestmark = pytest.mark.integration
 

@@ -5,11 +5,10 @@ import itertools
 import struct
 
 from hypothesis import given, HealthCheck, settings, strategies as st
-import pytest
-
 from kraft_master_driver.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS, get_codec, KraftDefaultCodec,
     PotFrame, TorqueCommand)
+import pytest
 
 CODEC = KraftDefaultCodec()
 REPLY_HEADER = b'\xaaP'

@@ -10,17 +10,15 @@ import subprocess
 import sys
 import time
 
-import numpy as np
-import pytest
-import serial
-
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration, POT_MAX
 from kraft_master_driver.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
-from kraft_master_driver.simulator import (
-    joints_to_actuators, SimulatedKraftMaster, Workspace)
+from kraft_master_driver.simulator import joints_to_actuators, SimulatedKraftMaster, Workspace
+import numpy as np
+import pytest
+import serial
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 CODEC = get_codec('kraft-default')

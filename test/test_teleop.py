@@ -5,12 +5,11 @@ import math
 import threading
 
 from hypothesis import given, settings, strategies as st
-import numpy as np
-import pytest
-
 from kraft_master_driver import kinematics
 from kraft_master_driver.teleop import (
     BASE_FRAME, ForceReflection, rate_command, REJECTION_REASONS, WRIST_FRAME)
+import numpy as np
+import pytest
 
 T0 = 5_000_000_000_000  # an arbitrary time.monotonic_ns() reading
 TIMEOUT_NS = 50_000_000  # the default wrench_timeout, 0.05 s
