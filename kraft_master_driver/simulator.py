@@ -54,6 +54,7 @@ JOINT_COUNT = 6
 MAX_SUBSTEP = 0.5e-3  # s
 MAX_CATCH_UP = 0.05  # s of model time per step; a longer idle gap is skipped, not replayed
 IDLE_TICK = 0.005  # s between model steps when no command arrives
+WIRE_WAKE_EARLY = 0.0003  # s before a reply is due: select() oversleeps by ~0.1 ms
 OPERATOR_MARGIN = 0.1  # fraction of each joint's range the operator's targets keep clear of
 READ_SIZE = 4096
 PROC_FD = '/proc/{pid}/fd/{fd}'
@@ -465,18 +466,20 @@ class SimulatedKraftMaster:
         while self._running:
             timeout = IDLE_TICK
             if self._pending:
-                timeout = min(timeout, max(0.0, self._pending[0][0] - time.monotonic()))
+                # Wake early and poll: select() oversleeps by about 0.1 ms here.
+                due_in = self._pending[0][0] - time.monotonic()
+                timeout = min(timeout, max(0.0, due_in - WIRE_WAKE_EARLY))
             master = self._master
             readable = select.select((wake, master) if master is not None else (wake,),
                                      (), (), timeout)[0]
             now = time.monotonic()
+            if self._pending:
+                self._send_due(now)
             self._advance(now)
             if master is not None and master in readable:
                 self._receive(now)
             if wake in readable:
                 self._run_requests()
-            if self._pending:
-                self._send_due(now)
 
     def _advance(self, now):
         """Run the watchdog, then integrate the model up to `now`."""
