@@ -48,7 +48,7 @@ from kraft_master_driver.protocol import (
     STATUS_CORRUPT_COMMAND)
 import numpy as np
 
-OPERATORS = ('hold', 'sweep', 'random_walk')
+OPERATORS = ('hold', 'sweep', 'random_walk', 'push')
 COUPLINGS = ('actuator', 'joint')
 JOINT_COUNT = 6
 MAX_SUBSTEP = 0.5e-3  # s
@@ -193,12 +193,36 @@ class RandomWalkOperator:
         return joints_to_actuators(self._start + blend * (self._end - self._start)).tolist()
 
 
+class PushOperator:
+    """An operator hand that pushes the wrist straight down and back, `period` s each way."""
+
+    DEPTH = 0.08  # m below the home pose at the bottom of the stroke
+
+    def __init__(self, workspace, period):
+        """Push from the workspace's home to DEPTH below it (shoulder and elbow only)."""
+        self._home = workspace.home()
+        self._bottom = self._home.copy()
+        goal = kinematics.forward(self._home)[:3, 3] - (0.0, 0.0, self.DEPTH)
+        for _ in range(20):
+            pose, jac = kinematics.forward_and_jacobian(self._bottom)
+            self._bottom[:3] += np.linalg.lstsq(jac[:3, :3], goal - pose[:3, 3], rcond=None)[0]
+        workspace.clip(self._bottom)
+        self._period = period
+
+    def target(self, t):
+        """Return the actuator coordinates (6 floats) the hand pulls toward at time t (s)."""
+        blend = 0.5 - 0.5 * math.cos(math.pi * t / self._period)
+        return joints_to_actuators(self._home + blend * (self._bottom - self._home)).tolist()
+
+
 def make_operator(name, workspace, period, rng):
     """Return the operator hand called `name` (one of OPERATORS)."""
     if name == 'hold':
         return HoldOperator(workspace)
     if name == 'sweep':
         return SweepOperator(workspace, period)
+    if name == 'push':
+        return PushOperator(workspace, period)
     return RandomWalkOperator(workspace, period, rng)
 
 

@@ -15,7 +15,8 @@ from kraft_master_driver.calibration import ArmCalibration, POT_MAX
 from kraft_master_driver.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
-from kraft_master_driver.simulator import joints_to_actuators, SimulatedKraftMaster, Workspace
+from kraft_master_driver.simulator import (
+    actuators_to_joints, joints_to_actuators, PushOperator, SimulatedKraftMaster, Workspace)
 import numpy as np
 import pytest
 import serial
@@ -487,3 +488,16 @@ def test_cli_refuses_an_unreadable_calibration():
         capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(REPO)))
     assert result.returncode == 2
     assert '/no/such.yaml: cannot read' in result.stderr
+
+
+def test_push_operator_moves_the_wrist_straight_down_and_back():
+    workspace = Workspace()
+    operator = PushOperator(workspace, period=2.0)
+
+    def wrist(t):
+        return kinematics.forward(actuators_to_joints(np.array(operator.target(t))))[:3, 3]
+
+    top, bottom, back = wrist(0.0), wrist(2.0), wrist(4.0)
+    np.testing.assert_allclose(bottom - top, (0.0, 0.0, -PushOperator.DEPTH), atol=0.005)
+    np.testing.assert_allclose(back, top, atol=1e-9)
+    assert wrist(1.0)[2] == pytest.approx(top[2] - PushOperator.DEPTH / 2, abs=0.005)
