@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
 STAMP := $(VENV)/.requirements-installed
-DURATION ?= 10
+DURATION ?= 20
 
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST

@@ -1,24 +1,27 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-kraft_master_demo: the paper's worked examples, then a live readout of a simulated device.
+kraft_master_demo: the paper's worked examples, then simulated teleoperation, live.
 
-The live part drives the built-in simulated hand controller over a real pseudo-terminal
-through the same serial code the driver uses.
+The driver runs against its built-in simulated hand controller (a real pseudo-terminal),
+whose simulated operator pushes the wrist down and back; the simulated slave arm follows the
+master's pose, meets a stiff wall 40 mm down, and its contact wrench is reflected to the
+master as joint torques. A few refreshed lines show what happens.
 """
 import argparse
 import math
+import signal
+import subprocess
 import sys
 import time
 
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
-from kraft_master_driver.device import KmcDevice
-from kraft_master_driver.simulator import SimulatedKraftMaster
-import numpy as np
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
-ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
+DRIVER = [sys.executable, '-m', 'kraft_master_driver.node', '--ros-args',
+          '-p', 'port:=sim', '-p', 'sim_operator:=push', '-p', 'force_enabled_at_start:=true']
+SLAVE = [sys.executable, '-m', 'kraft_master_driver.slave_sim']
 
 
 def _rows(matrix, scales):
@@ -42,46 +45,117 @@ def print_examples(out=sys.stdout):
         print(file=out)
 
 
-def live_readout(duration, rate_hz=1000.0, out=sys.stdout):
-    """Cycle the simulated device for `duration` s, refreshing a short readout."""
-    calibration = ArmCalibration.nominal('right')
-    with SimulatedKraftMaster(arm='right', operator='sweep') as simulator:
-        port = simulator.start()
-        print(f'Simulated Kraft Master on {port}; reading it for {duration:g} s', file=out)
-        with KmcDevice(port) as device:
-            period = 1.0 / rate_hz
-            start = next_print = time.monotonic()
-            deadline, cycles = start, 0
-            while time.monotonic() - start < duration:
-                result = device.cycle(ZERO_TORQUES)
-                cycles += result is not None
-                now = time.monotonic()
-                if result is not None and now >= next_print:
-                    theta = calibration.pots_to_joints(result.frame.pots)
-                    position = kinematics.forward(theta)[:3, 3] * 1000.0
-                    angles = ' '.join(f'{v:7.2f}' for v in np.degrees(theta))
-                    wrist = ' '.join(f'{v:7.1f}' for v in position)
-                    print(f'\r{cycles / max(now - start, 1e-9):7.1f} cycles/s | th (deg) '
-                          f'{angles} | wrist (mm) {wrist} | timeouts '
-                          f'{device.stats.get("timeouts", 0)}', end='', file=out, flush=True)
-                    next_print = now + 0.1
-                deadline += period
-                time.sleep(max(0.0, deadline - time.monotonic()))
-        print(file=out)
+class Readout:
+    """A client node that keeps the newest state of the teleoperation and formats it."""
+
+    def __init__(self):
+        """Subscribe to the driver's state, the slave's wrench and the diagnostics."""
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+        import rclpy
+        from sensor_msgs.msg import JointState
+
+        rclpy.init()
+        self.rclpy = rclpy
+        self.node = rclpy.create_node('kraft_master_demo')
+        self.latest = {}
+        for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
+                                (WrenchStamped, 'wrench'), (PoseStamped, 'slave_pose'),
+                                (DiagnosticArray, 'diagnostics')):
+            self.node.create_subscription(
+                msg_type, topic, lambda msg, topic=topic: self.latest.__setitem__(topic, msg), 10)
+
+    def spin(self, seconds):
+        """Process messages for about `seconds`."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.rclpy.spin_once(self.node, timeout_sec=max(0.0, deadline - time.monotonic()))
+
+    def lines(self):
+        """Return the readout: a few lines of text."""
+        latest = self.latest
+        if 'joint_states' not in latest:
+            return ['waiting for the driver ...']
+        state = latest['joint_states']
+        diagnostics = {}
+        for status in getattr(latest.get('diagnostics'), 'status', []):
+            diagnostics.update({kv.key: kv.value for kv in status.values})
+        p = latest['pose'].pose.position if 'pose' in latest else None
+        wrench = latest['wrench'].wrench.force if 'wrench' in latest else None
+        slave = latest['slave_pose'].pose.position if 'slave_pose' in latest else None
+        link_errors = sum(int(diagnostics.get(f'link {k}', 0)) for k in (
+            'timeouts', 'bad_crc', 'garbage_bytes', 'truncated', 'link_faults'))
+        return [
+            f'loop {diagnostics.get("loop rate (Hz)", "-"):>7} Hz | period p99 '
+            f'{diagnostics.get("period p99 (ms)", "-")} ms | link errors {link_errors} | '
+            f'force {diagnostics.get("force state", "-")}',
+            'joints (deg)    ' + ' '.join(f'{math.degrees(v):8.2f}' for v in state.position),
+            'torques (N*m)   ' + ' '.join(f'{v:8.3f}' for v in state.effort),
+            'master wrist (mm) ' + (f'{1e3 * p.x:7.1f} {1e3 * p.y:7.1f} {1e3 * p.z:7.1f}'
+                                    if p else '-'),
+            'slave (mm)        ' + (f'{1e3 * slave.x:7.1f} {1e3 * slave.y:7.1f} '
+                                    f'{1e3 * slave.z:7.1f}' if slave else '-')
+            + '   (wall at z = -40.0)',
+            'wrench on master (N) ' + (f'{wrench.x:7.2f} {wrench.y:7.2f} {wrench.z:7.2f}'
+                                       if wrench else '-'),
+        ]
+
+    def close(self):
+        """Leave ROS."""
+        self.node.destroy_node()
+        self.rclpy.try_shutdown()
+
+
+def stop(processes):
+    """Ctrl-C each process (the driver then zeroes its torques), then make sure they are gone."""
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def teleoperate(duration, out=sys.stdout):
+    """Run driver and slave for `duration` s (or until Ctrl-C), refreshing the readout."""
+    processes = [subprocess.Popen(DRIVER, stdin=subprocess.DEVNULL),
+                 subprocess.Popen(SLAVE, stdin=subprocess.DEVNULL)]
+    readout = Readout()
+    interactive = out.isatty()
+    shown = 0
+    try:
+        end = time.monotonic() + duration
+        while time.monotonic() < end:
+            readout.spin(0.1 if interactive else 1.0)
+            if any(process.poll() is not None for process in processes):
+                print('a demo process ended early; see its messages above', file=out)
+                return 1
+            lines = readout.lines()
+            if interactive and shown:
+                out.write(f'\x1b[{shown}F\x1b[J')
+            out.write('\n'.join(lines) + '\n')
+            out.flush()
+            shown = len(lines)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        readout.close()
+        stop(processes)
+    return 0
 
 
 def main(argv=None):
-    """Print the examples and run the live readout."""
+    """Print the examples and run the teleoperation demo."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    parser.add_argument('--duration', type=float, default=10.0,
-                        help='seconds of live readout (default 10)')
+    parser.add_argument('--duration', type=float, default=20.0,
+                        help='seconds of teleoperation (default 20); Ctrl-C ends it earlier')
     args = parser.parse_args(argv)
     print_examples()
-    try:
-        live_readout(args.duration)
-    except KeyboardInterrupt:
-        print()
-    return 0
+    print(f'Simulated teleoperation for {args.duration:g} s (Ctrl-C to stop) ...', flush=True)
+    return teleoperate(args.duration)
 
 
 if __name__ == '__main__':

@@ -111,8 +111,8 @@ PARAMETERS = {
     'base_frame': Spec('kraft_master_base', 'frame_id of the base frame {0}.'),
     'wrist_frame': Spec('kraft_master_wrist', 'frame_id of the wrist frame {6}.'),
     'joint_prefix': Spec('', 'Prefix of the joint names, e.g. "left_" for two arms.'),
-    'sim_operator': Spec('hold', 'Simulated operator hand (port "sim"): hold, sweep or '
-                         'random_walk.', choices=('hold', 'sweep', 'random_walk')),
+    'sim_operator': Spec('hold', 'Simulated operator hand (port "sim"): hold, sweep, '
+                         'random_walk or push.', choices=('hold', 'sweep', 'random_walk', 'push')),
     'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
                              low=0.0, high=100.0),
 }
