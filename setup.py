@@ -15,6 +15,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/urdf', glob('urdf/*.urdf')),
     ],
     install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML'],
     zip_safe=True,
@@ -27,6 +29,8 @@ setup(
         'console_scripts': [
             'kraft_master_node = kraft_master_driver.node:main',
             'kraft_master_sim = kraft_master_driver.simulator:main',
+            'kraft_master_slave_sim = kraft_master_driver.slave_sim:main',
+            'kraft_master_urdf = kraft_master_driver.urdf_model:main',
             'kraft_master_demo = kraft_master_driver.demo:main',
         ],
     },

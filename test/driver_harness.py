@@ -138,17 +138,18 @@ class RosClient:
 
 
 class DriverProcess:
-    """The installed kraft_master_node, started as `ros2 run` would start it."""
+    """An installed executable of the package, started as `ros2 run` would start it."""
 
-    def __init__(self, prefix, domain_id, parameters=(), namespace=None, params_file=None):
-        """Start the node with `-p name:=value` for each of `parameters`."""
-        command = [str(executable(prefix, 'kraft_master_node')), '--ros-args']
+    def __init__(self, prefix, domain_id, parameters=(), namespace=None, params_file=None,
+                 name='kraft_master_node'):
+        """Start executable `name` with `-p name:=value` for each of `parameters`."""
+        command = [str(executable(prefix, name)), '--ros-args']
         if namespace:
             command += ['-r', f'__ns:={namespace}']
         if params_file:
             command += ['--params-file', str(params_file)]
-        for name, value in parameters:
-            command += ['-p', f'{name}:={value}']
+        for parameter, value in parameters:
+            command += ['-p', f'{parameter}:={value}']
         self.process = subprocess.Popen(
             command, env=installed_env(prefix, domain_id), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)

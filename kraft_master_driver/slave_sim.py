@@ -1,0 +1,406 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+kraft_master_slave_sim: a simulated slave arm for topic-based teleoperation with the driver.
+
+The slave is a point mass (its Cartesian wrist point) servoed toward a target with velocity
+and acceleration limits, in an environment with a stiff virtual wall and a soft box. In
+'position' mode it follows the master's `pose` (target = offset + scale * (master position -
+centre), orientation copied); in 'rate' mode it moves at scale * `rate_command`. Every cycle it
+publishes `slave_pose` and, on the master's `wrench` topic, the contact force mapped back to
+the master (scale * force, in the master's base frame; zero out of contact), which also keeps
+the driver's wrench watchdog fed while the slave lives.
+
+SlaveArm, Wall, SoftBox and MasterSlaveMap are plain Python (no ROS) and unit-tested; the node
+below them only moves messages.
+"""
+import math
+import sys
+import time
+from typing import NamedTuple
+
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+import rclpy.exceptions
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+MODES = ('position', 'rate')
+MAX_STEP = 0.002  # s, longest integration step
+MAX_CATCH_UP = 0.1  # s of simulated time per advance(); a longer stall is skipped, not replayed
+
+
+def _vector(name, values):
+    """Return `values` as a float array of 3 finite numbers, else raise ValueError."""
+    try:
+        array = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.shape != (3,) or not np.all(np.isfinite(array)):
+        raise ValueError(f'{name} must be 3 finite numbers, got {values!r}')
+    return array
+
+
+def _number(name, value, positive=False):
+    """Return `value` as a finite float >= 0 (> 0 if positive), else raise ValueError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f'{name} must be a number, got {value!r}')
+    if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
+        raise ValueError(f'{name} must be finite and {">" if positive else ">="} 0, got {value}')
+    return float(value)
+
+
+def _push(normal, depth, velocity, stiffness, damping):
+    """Spring-damper force (N) along a unit `normal` at `depth` (m), never pulling."""
+    rate = -float(velocity @ normal)
+    return max(stiffness * depth + damping * rate, 0.0) * normal
+
+
+def _clamp_norm(vector, limit):
+    """Return `vector` shortened to length `limit` if it is longer."""
+    length = math.sqrt(float(vector @ vector))
+    return vector * (limit / length) if length > limit else vector
+
+
+class Wall:
+    """A stiff plane through `point`; free space lies on the side `normal` points to."""
+
+    def __init__(self, point, normal, stiffness, damping):
+        """Check the plane (m), stiffness (N/m) and damping (N*s/m); the normal is normalised."""
+        self.point = _vector('wall.point', point)
+        normal = _vector('wall.normal', normal)
+        length = math.sqrt(float(normal @ normal))
+        if length == 0.0:
+            raise ValueError('wall.normal must not be zero')
+        self.normal = normal / length
+        self.stiffness = _number('wall.stiffness', stiffness)
+        self.damping = _number('wall.damping', damping)
+
+    def penetration(self, position):
+        """Return how deep (m) `position` is behind the surface; negative in free space."""
+        return float((self.point - position) @ self.normal)
+
+    def force(self, position, velocity):
+        """Force (N) on a point: k * depth + b * depth rate along the normal, never pulling."""
+        depth = self.penetration(position)
+        if depth <= 0.0:
+            return np.zeros(3)
+        return _push(self.normal, depth, velocity, self.stiffness, self.damping)
+
+
+class SoftBox:
+    """A soft box: a point inside is pushed out through the nearest face, like the wall's."""
+
+    def __init__(self, centre, half_sizes, stiffness, damping):
+        """Check the centre (m), half sizes (m, > 0), stiffness (N/m) and damping (N*s/m)."""
+        self.centre = _vector('box.centre', centre)
+        self.half_sizes = _vector('box.half_sizes', half_sizes)
+        if not np.all(self.half_sizes > 0.0):
+            raise ValueError(f'box.half_sizes must be > 0, got {self.half_sizes.tolist()}')
+        self.stiffness = _number('box.stiffness', stiffness)
+        self.damping = _number('box.damping', damping)
+
+    def force(self, position, velocity):
+        """Force (N) on a point at `position` moving at `velocity`; zero outside the box."""
+        offset = position - self.centre
+        depth = self.half_sizes - np.abs(offset)
+        if not np.all(depth > 0.0):
+            return np.zeros(3)
+        axis = int(np.argmin(depth))
+        normal = np.zeros(3)
+        normal[axis] = math.copysign(1.0, offset[axis])
+        return _push(normal, float(depth[axis]), velocity, self.stiffness, self.damping)
+
+
+class SlaveLimits(NamedTuple):
+    """The slave's servo: limits (m/s, m/s^2), moving mass (kg) and loop gains (1/s)."""
+
+    max_velocity: float = 0.25  # ISO 10218-1's reduced speed for manual mode
+    max_acceleration: float = 5.0  # with the mass, the largest force the slave can push with
+    mass: float = 1.0
+    position_gain: float = 15.0
+    velocity_gain: float = 60.0  # 4 * position_gain: the cascade is critically damped
+
+    def checked(self):
+        """Return the limits with every value a positive finite float, else raise ValueError."""
+        return SlaveLimits(*(_number(name, value, positive=True)
+                             for name, value in zip(self._fields, self)))
+
+
+class SlaveArm:
+    """
+    The slave's wrist point: a mass driven by a velocity-limited, force-limited servo.
+
+    Each step the servo asks for a desired velocity (clamped to max_velocity), its
+    acceleration toward it is clamped to max_acceleration, and the environment's contact force
+    acts on the mass on top of it: in steady contact the slave pushes with at most
+    mass * max_acceleration, and an obstacle stops it whatever its target.
+    """
+
+    def __init__(self, limits=SlaveLimits(), wall=None, box=None):
+        """Set up a slave with no position yet: call reset() first."""
+        self.limits = limits.checked()
+        self.wall = wall
+        self.box = box
+        self.position = None
+        self.velocity = np.zeros(3)
+
+    def reset(self, position):
+        """Put the slave at rest at `position` (m), or on the wall's surface if behind it."""
+        position = _vector('position', position)
+        if self.wall is not None:
+            position += max(self.wall.penetration(position), 0.0) * self.wall.normal
+        self.position = position
+        self.velocity = np.zeros(3)
+
+    def contact_force(self):
+        """Return the environment's force (N) on the slave now."""
+        force = np.zeros(3)
+        if self.wall is not None:
+            force += self.wall.force(self.position, self.velocity)
+        if self.box is not None:
+            force += self.box.force(self.position, self.velocity)
+        return force
+
+    def step(self, dt, desired_velocity):
+        """Advance `dt` seconds (semi-implicit Euler) with the servo asking `desired_velocity`."""
+        limits = self.limits
+        wanted = _clamp_norm(np.asarray(desired_velocity, dtype=float), limits.max_velocity)
+        drive = _clamp_norm(limits.velocity_gain * (wanted - self.velocity),
+                            limits.max_acceleration)
+        self.velocity = self.velocity + dt * (drive + self.contact_force() / limits.mass)
+        self.position = self.position + dt * self.velocity
+
+    def advance(self, elapsed, target=None, velocity=None):
+        """
+        Run `elapsed` s in steps of at most MAX_STEP; return the contact force (N) at the end.
+
+        Give `target` (m) to servo toward a position, or `velocity` (m/s) to move at a rate.
+        """
+        elapsed = min(elapsed, MAX_CATCH_UP)
+        steps = max(1, math.ceil(elapsed / MAX_STEP))
+        dt = elapsed / steps
+        for _ in range(steps):
+            desired = (velocity if target is None
+                       else self.limits.position_gain * (target - self.position))
+            self.step(dt, desired)
+        return self.contact_force()
+
+
+class MasterSlaveMap:
+    """
+    Master wrist -> slave target: offset + scale * (position - centre), axes aligned.
+
+    Forces go back through the transpose of the same map, scale * force, so the power the
+    master feels equals the power the slave exchanges with its environment. With centre None
+    the first master position becomes the centre.
+    """
+
+    def __init__(self, scale=1.0, offset=(0.0, 0.0, 0.0), centre=None):
+        """Check scale (> 0), offset (m) and centre (m, or None)."""
+        self.scale = _number('scale', scale, positive=True)
+        self.offset = _vector('offset', offset)
+        self.centre = None if centre is None else _vector('centre', centre)
+
+    def target(self, master_position):
+        """Return where the slave should be (m) when the master's wrist is at master_position."""
+        master_position = _vector('master position', master_position)
+        if self.centre is None:
+            self.centre = master_position
+        return self.offset + self.scale * (master_position - self.centre)
+
+    def velocity(self, master_velocity):
+        """Return the slave's rate in m/s for the master's rate command in m/s."""
+        return self.scale * np.asarray(master_velocity, dtype=float)
+
+    def reflect(self, slave_force):
+        """Return the force (N) for the master of a force (N) acting on the slave."""
+        return self.scale * np.asarray(slave_force, dtype=float)
+
+
+def integrate_quaternion(quaternion, angular_velocity, dt):
+    """Turn a unit quaternion (x, y, z, w) by angular_velocity (rad/s, base frame) for dt s."""
+    rotation = np.asarray(angular_velocity, dtype=float) * dt
+    angle = math.sqrt(float(rotation @ rotation))
+    if angle == 0.0:
+        return tuple(quaternion)
+    ux, uy, uz = rotation * (math.sin(angle / 2.0) / angle)
+    uw = math.cos(angle / 2.0)
+    x, y, z, w = quaternion
+    turned = np.array([
+        uw * x + ux * w + uy * z - uz * y,
+        uw * y - ux * z + uy * w + uz * x,
+        uw * z + ux * y - uy * x + uz * w,
+        uw * w - ux * x - uy * y - uz * z,
+    ])
+    return tuple((turned / math.sqrt(float(turned @ turned))).tolist())
+
+
+# -- the node ---------------------------------------------------------------------------
+
+_DEFAULT_LIMITS = SlaveLimits()
+
+# name -> (default, description with units)
+PARAMETERS = {
+    'mode': ('position', "'position': follow the master's pose; 'rate': its rate_command."),
+    'rate_hz': (500.0, 'Simulation and publishing rate (Hz).'),
+    'scale': (1.0, 'Slave motion per master motion (1); the reflected force is scale times '
+                   'the force on the slave.'),
+    'offset': ([0.0, 0.0, 0.0], 'Slave position when the master is at the centre (m).'),
+    'centre_at_start': (True, "The master's first pose is the centre; else use centre."),
+    'centre': ([0.0, 0.0, 0.0], 'Master wrist position mapped to offset (m), base frame.'),
+    'command_timeout': (0.1, 'Rate mode: an older rate_command stops the slave (s).'),
+    'max_velocity': (_DEFAULT_LIMITS.max_velocity, 'Slave speed limit (m/s).'),
+    'max_acceleration': (_DEFAULT_LIMITS.max_acceleration, 'Slave servo acceleration limit '
+                         '(m/s^2); times mass, the largest force it pushes with.'),
+    'mass': (_DEFAULT_LIMITS.mass, 'Moving mass of the slave (kg).'),
+    'position_gain': (_DEFAULT_LIMITS.position_gain, 'Position loop gain (1/s).'),
+    'velocity_gain': (_DEFAULT_LIMITS.velocity_gain, 'Velocity loop gain (1/s).'),
+    'wall.point': ([0.0, 0.0, -0.04], 'A point of the wall plane (m), slave frame.'),
+    'wall.normal': ([0.0, 0.0, 1.0], 'Wall normal, pointing into free space.'),
+    'wall.stiffness': (20000.0, 'Wall stiffness (N/m); 0 removes the wall.'),
+    'wall.damping': (100.0, 'Wall damping (N*s/m).'),
+    'box.centre': ([0.0, 0.12, 0.0], 'Centre of the soft box (m), slave frame.'),
+    'box.half_sizes': ([0.1, 0.06, 0.04], 'Half sizes of the soft box along x, y, z (m).'),
+    'box.stiffness': (200.0, 'Soft box stiffness (N/m); 0 removes the box.'),
+    'box.damping': (20.0, 'Soft box damping (N*s/m).'),
+    'base_frame': ('kraft_master_base', "frame_id of the wrench: the driver's base_frame."),
+    'slave_frame': ('slave_world', 'frame_id of slave_pose.'),
+}
+
+
+class ParameterError(ValueError):
+    """A parameter value the slave cannot run with; the message names the parameter."""
+
+
+def _stamp(msg, time_msg, frame_id):
+    msg.header.stamp = time_msg
+    msg.header.frame_id = frame_id
+    return msg
+
+
+class SlaveSimNode(Node):
+    """Runs a SlaveArm against the master's pose or rate command and reflects its contacts."""
+
+    def __init__(self, **kwargs):
+        """Declare and check the parameters, then start the fixed-rate simulation timer."""
+        super().__init__('kraft_master_slave_sim', **kwargs)
+        config = self._declare_parameters()
+        try:
+            if config['mode'] not in MODES:
+                raise ValueError(f'mode must be one of {", ".join(MODES)}, '
+                                 f'got {config["mode"]!r}')
+            rate_hz = _number('rate_hz', config['rate_hz'], positive=True)
+            self.timeout = _number('command_timeout', config['command_timeout'], positive=True)
+            self.map = MasterSlaveMap(
+                config['scale'], config['offset'],
+                None if config['centre_at_start'] else config['centre'])
+            wall = Wall(config['wall.point'], config['wall.normal'], config['wall.stiffness'],
+                        config['wall.damping'])
+            box = SoftBox(config['box.centre'], config['box.half_sizes'],
+                          config['box.stiffness'], config['box.damping'])
+            self.arm = SlaveArm(SlaveLimits(*(config[name] for name in SlaveLimits._fields)),
+                                wall if wall.stiffness > 0.0 else None,
+                                box if box.stiffness > 0.0 else None)
+        except ValueError as error:
+            raise ParameterError(f'parameter {error}') from None
+        self.mode = config['mode']
+        self.base_frame = config['base_frame']
+        self.slave_frame = config['slave_frame']
+        self.target = None
+        self.orientation = (0.0, 0.0, 0.0, 1.0)
+        self.rate = None  # (linear, angular, monotonic receipt time) of the last rate_command
+
+        state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        latest_only = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', state_qos)
+        self.pose_pub = self.create_publisher(PoseStamped, 'slave_pose', state_qos)
+        if self.mode == 'position':
+            self.create_subscription(PoseStamped, 'pose', self._on_pose, latest_only)
+        else:
+            self.create_subscription(
+                TwistStamped, 'rate_command', self._on_rate_command, latest_only)
+            self.arm.reset(self.map.offset)
+        self.last_tick = time.monotonic()
+        self.create_timer(1.0 / rate_hz, self._tick)
+        self.get_logger().info(
+            f'slave in {self.mode} mode at {rate_hz:g} Hz; wall '
+            f'{"on" if self.arm.wall else "off"}, soft box {"on" if self.arm.box else "off"}')
+
+    def _declare_parameters(self):
+        values = {}
+        for name, (default, description) in PARAMETERS.items():
+            descriptor = ParameterDescriptor(name=name, description=description, read_only=True)
+            try:
+                values[name] = self.declare_parameter(name, default, descriptor).value
+            except (rclpy.exceptions.InvalidParameterTypeException,
+                    rclpy.exceptions.InvalidParameterValueException) as error:
+                raise ParameterError(f'parameter {name}: {error}') from None
+        return values
+
+    def _on_pose(self, msg):
+        p, q = msg.pose.position, msg.pose.orientation
+        self.target = self.map.target((p.x, p.y, p.z))
+        self.orientation = (q.x, q.y, q.z, q.w)
+        if self.arm.position is None:
+            self.arm.reset(self.target)
+
+    def _on_rate_command(self, msg):
+        linear, angular = msg.twist.linear, msg.twist.angular
+        self.rate = (self.map.velocity((linear.x, linear.y, linear.z)),
+                     np.array([angular.x, angular.y, angular.z]), time.monotonic())
+
+    def _tick(self):
+        now = time.monotonic()
+        elapsed, self.last_tick = min(now - self.last_tick, MAX_CATCH_UP), now
+        force = np.zeros(3)
+        if self.mode == 'position' and self.target is not None:
+            force = self.arm.advance(elapsed, target=self.target)
+        elif self.mode == 'rate':
+            linear = angular = np.zeros(3)
+            if self.rate is not None and now - self.rate[2] <= self.timeout:
+                linear, angular, _ = self.rate
+            force = self.arm.advance(elapsed, velocity=linear)
+            self.orientation = integrate_quaternion(self.orientation, angular, elapsed)
+        stamp = self.get_clock().now().to_msg()
+        wrench = _stamp(WrenchStamped(), stamp, self.base_frame)
+        f = wrench.wrench.force
+        f.x, f.y, f.z = self.map.reflect(force).tolist()
+        self.wrench_pub.publish(wrench)
+        if self.arm.position is not None:
+            pose = _stamp(PoseStamped(), stamp, self.slave_frame)
+            p, q = pose.pose.position, pose.pose.orientation
+            p.x, p.y, p.z = self.arm.position.tolist()
+            q.x, q.y, q.z, q.w = self.orientation
+            self.pose_pub.publish(pose)
+
+
+def main(args=None):
+    """Run the slave until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    rclpy.init(args=args)
+    node = None
+    exit_code = 0
+    try:
+        node = SlaveSimNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RuntimeError:
+        # A signal can shut the context down while the executor takes a message.
+        if rclpy.ok():
+            raise
+    except ParameterError as error:
+        print(f'kraft_master_slave_sim: {error}', file=sys.stderr)
+        exit_code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return exit_code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
