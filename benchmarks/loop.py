@@ -34,7 +34,7 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from kraft_master_driver.protocol import get_codec  # noqa: E402
+from kraft_master_driver.protocol import get_codec  # noqa: E402, I100
 
 FLIP_PERIOD_S = 0.02
 WRENCH_RATE_HZ = 1000.0

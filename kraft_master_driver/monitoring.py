@@ -20,7 +20,7 @@ class RecentSamples:
         self.count += 1
 
     def recent(self):
-        """The samples held, oldest order not kept (ns)."""
+        """Return the samples held (ns), in ring order."""
         return self.samples_ns[:min(self.count, self.samples_ns.size)]
 
     def percentiles_s(self):

@@ -217,7 +217,7 @@ class ForceReflection:
 
     @property
     def settings(self):
-        """The current Settings (an immutable snapshot)."""
+        """Return the current Settings (an immutable snapshot)."""
         return self._hot.settings
 
     @property
@@ -299,7 +299,7 @@ class ForceReflection:
 
     @property
     def counters(self):
-        """A snapshot of the event counters, flat: name -> count."""
+        """Return a snapshot of the event counters, flat: name -> count."""
         counters = {
             'watchdog_trips': self._watchdog_trips,
             'saturation_events': self._saturation_events,

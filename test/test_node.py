@@ -37,7 +37,7 @@ class Session:
             raise AssertionError('driver did not connect:\n' + self.driver.wait_exit()[1])
 
     def last_command(self):
-        """The torque counts of the newest command the device received."""
+        """Return the torque counts of the newest command the device received."""
         return self.simulator.received[-1][1].counts
 
     def close(self):
@@ -49,7 +49,7 @@ class Session:
 
 @pytest.fixture
 def session(install_prefix):
-    """A running driver with force output enabled at start-up."""
+    """Yield a running driver with force output enabled at start-up."""
     running = Session(install_prefix, [('force_enabled_at_start', 'true')])
     yield running
     running.close()
@@ -123,7 +123,7 @@ def test_pots_are_the_raw_counts_of_the_same_sample(session):
 
 
 def latest_with_torque(client):
-    """The newest joint state that carries a commanded torque."""
+    """Return the newest joint state that carries a commanded torque."""
     return next(s for s in reversed(client.joint_states) if any(s.effort))
 
 

@@ -4,9 +4,8 @@
 import re
 
 from driver_harness import REPO
-import pytest
-
 from kraft_master_driver.node import PARAMETERS
+import pytest
 
 README = (REPO / 'README.md').read_text()
 ROWS = {m.group(1): m.group(2) for m in re.finditer(
