@@ -32,6 +32,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 SIM_PORT = 'sim'
+GIL_SWITCH_INTERVAL_S = 0.0002
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 POT_NAMES = [f'pot{i}' for i in range(1, 7)]
 
@@ -166,10 +167,6 @@ def _milliseconds(name, median_p99_max):
             for label, seconds in zip(('median', 'p99', 'max'), median_p99_max)}
 
 
-def _stamp(msg_stamp, time_ns):
-    msg_stamp.sec, msg_stamp.nanosec = divmod(time_ns, 1_000_000_000)
-
-
 class KraftMasterNode(Node):
     """Publishes the hand controller's state and reflects task wrenches as joint torques."""
 
@@ -199,6 +196,7 @@ class KraftMasterNode(Node):
         self.pots_pub = self.create_publisher(JointState, 'pots', state_qos)
         self.rate_pub = self.create_publisher(TwistStamped, 'rate_command', state_qos)
         self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', state_qos)
+        self._make_messages()
         self.create_subscription(
             WrenchStamped, 'wrench', self._on_wrench,
             QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
@@ -345,39 +343,55 @@ class KraftMasterNode(Node):
         return theta, velocity, pose, jacobian
 
     def _effort(self, actuator_nm):
-        torques = list(actuator_nm) + [0.0]
+        """Joint torques th1..th6 (N*m) that the torques sent amount to; th6 has no motor."""
+        torques = [*actuator_nm, 0.0]
         if self.config['coupling'] == 'actuator':
-            return kinematics.joint_torques_from_actuator(torques).tolist()
+            torques[1] += torques[2]  # kinematics.joint_torques_from_actuator, inlined
         return torques
 
+    def _make_messages(self):
+        """Build the published messages once; each cycle only fills in its values."""
+        base = self.config['base_frame']
+        self._joint_msg = JointState(name=self.joint_names)
+        self._joint_msg.header.frame_id = base
+        self._pose_msg = PoseStamped()
+        self._pose_msg.header.frame_id = base
+        self._pots_msg = JointState(name=POT_NAMES)
+        self._pots_msg.header.frame_id = base
+        self._twist_msg = TwistStamped()
+        self._twist_msg.header.frame_id = base
+
     def _publish_state(self, result, theta, velocity, pose):
-        joint_state = JointState()
-        _stamp(joint_state.header.stamp, result.receive_ns)
-        joint_state.header.frame_id = self.config['base_frame']
-        joint_state.name = self.joint_names
+        sec, nanosec = divmod(result.receive_ns, 1_000_000_000)
+        joint_state = self._joint_msg
+        stamp = joint_state.header.stamp
+        stamp.sec, stamp.nanosec = sec, nanosec
         joint_state.position = theta.tolist()
         joint_state.velocity = velocity.tolist()
         joint_state.effort = self._effort(result.commanded_nm)
         self.joint_pub.publish(joint_state)
 
-        pose_msg = PoseStamped()
-        pose_msg.header = joint_state.header
-        p = pose_msg.pose
-        p.position.x, p.position.y, p.position.z = pose[:3, 3].tolist()
-        q = p.orientation
-        q.x, q.y, q.z, q.w = kinematics.rotation_to_quaternion(pose)
+        pose_msg = self._pose_msg
+        stamp = pose_msg.header.stamp
+        stamp.sec, stamp.nanosec = sec, nanosec
+        rows = pose.tolist()
+        position, orientation = pose_msg.pose.position, pose_msg.pose.orientation
+        position.x, position.y, position.z = rows[0][3], rows[1][3], rows[2][3]
+        (orientation.x, orientation.y, orientation.z,
+         orientation.w) = kinematics.rotation_to_quaternion(rows)
         self.pose_pub.publish(pose_msg)
 
-        pots = JointState()
-        pots.header = joint_state.header
-        pots.name = POT_NAMES
-        pots.position = [float(x) for x in result.frame.pots]
+        pots = self._pots_msg
+        stamp = pots.header.stamp
+        stamp.sec, stamp.nanosec = sec, nanosec
+        pots.position = [float(count) for count in result.frame.pots]
         self.pots_pub.publish(pots)
 
         if self.config['rate_command_enabled'] and self.centre is not None:
             linear, angular = rate_command(pose, self.centre, *self.config['rate_gain'])
-            twist = TwistStamped()
-            twist.header = joint_state.header
+            twist = self._twist_msg
+            stamp = twist.header.stamp
+            stamp.sec, stamp.nanosec = sec, nanosec
             t = twist.twist
             t.linear.x, t.linear.y, t.linear.z = linear.tolist()
             t.angular.x, t.angular.y, t.angular.z = angular.tolist()
@@ -498,6 +512,8 @@ class KraftMasterNode(Node):
 
 def main(args=None):
     """Run the node until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    # The loop thread must get the GIL soon after it wakes, not up to 5 ms (the default) later.
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     rclpy.init(args=args)
     node = None
     exit_code = 0
