@@ -9,7 +9,7 @@ DURATION ?= 20
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
-.PHONY: demo test lint bench venv clean
+.PHONY: demo test lint bench soak venv clean
 
 venv: $(STAMP)
 
@@ -28,8 +28,17 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(VPY) -m pytest -q -m linter
 
+# Figures, not tests: each prints a table (loop and link also write JSON).
 bench: $(STAMP)
 	$(VPY) benchmarks/kinematics.py
+	$(VPY) benchmarks/link.py
+	$(VPY) benchmarks/loop.py
+	$(VPY) benchmarks/report.py
+
+# A long run at 1 kHz with random faults, not part of `make test`: one hour unless
+# `make soak DURATION=600` says otherwise.
+soak: $(STAMP)
+	$(VPY) benchmarks/soak.py --duration $(if $(filter command line,$(origin DURATION)),$(DURATION),3600)
 
 clean:
 	rm -rf $(VENV) build install log .pytest_cache .hypothesis
