@@ -31,6 +31,8 @@ setup(
             'kraft_master_sim = kraft_master_driver.simulator:main',
             'kraft_master_slave_sim = kraft_master_driver.slave_sim:main',
             'kraft_master_urdf = kraft_master_driver.urdf_model:main',
+            'kraft_master_report = kraft_master_driver.report:main',
+            'kraft_master_calibrate = kraft_master_driver.calibrate:main',
             'kraft_master_demo = kraft_master_driver.demo:main',
         ],
     },

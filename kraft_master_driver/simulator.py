@@ -141,6 +141,10 @@ class HoldOperator:
         """Return the actuator coordinates (6 floats) the hand pulls toward at time t (s)."""
         return self._target
 
+    def hold_at(self, actuator_target):
+        """Hold actuator coordinates (6 values, rad) from now on."""
+        self._target = [float(x) for x in actuator_target]
+
 
 class SweepOperator:
     """An operator hand that sweeps each joint in turn, one sine period each, inside limits."""
@@ -402,6 +406,12 @@ class SimulatedKraftMaster:
     @corrupt_byte_rate.setter
     def corrupt_byte_rate(self, rate):
         self._corrupt_rate = _rate(rate, 'corrupt_byte_rate')
+
+    def hold_at(self, actuator_target):
+        """Make the 'hold' operator hand pull toward actuator coordinates (6 values, rad)."""
+        if not isinstance(self._operator, HoldOperator):
+            raise ValueError("only the 'hold' operator hand can be held at a pose")
+        self._operator.hold_at(actuator_target)
 
     def stall(self, ms):
         """Answer nothing for `ms` milliseconds; commands meanwhile are consumed, not applied."""

@@ -501,3 +501,22 @@ def test_push_operator_moves_the_wrist_straight_down_and_back():
     np.testing.assert_allclose(bottom - top, (0.0, 0.0, -PushOperator.DEPTH), atol=0.005)
     np.testing.assert_allclose(back, top, atol=1e-9)
     assert wrist(1.0)[2] == pytest.approx(top[2] - PushOperator.DEPTH / 2, abs=0.005)
+
+
+def test_hold_at_moves_the_held_pose_and_only_for_the_hold_operator():
+    start = joints_to_actuators(Workspace().home())
+    target = joints_to_actuators(np.radians([10.0, 50.0, -100.0, 5.0, 10.0, 0.0]))
+    with SimulatedKraftMaster(operator='hold') as simulator:
+        simulator.hold_at(target)
+        simulator.start()
+
+        def error():
+            return np.abs(joints_to_actuators(simulator.joint_angles()) - target).max()
+
+        deadline = time.monotonic() + 20.0
+        while error() > 0.01 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        # Coulomb friction leaves the hand's spring a small static offset.
+        assert error() < 0.01 < np.abs(start - target).max()
+    with pytest.raises(ValueError, match='hold'):
+        SimulatedKraftMaster(operator='sweep').hold_at(target)

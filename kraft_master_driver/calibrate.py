@@ -1,0 +1,503 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+kraft_master_calibrate: a guided least-squares calibration of the pots of one arm.
+
+With the device connected (--port PATH, or 'sim' for the built-in simulator) the operator
+holds the arm at known poses, one after the other: by default against the mechanical stops
+of Table II, plus any fixtures given with --fixture. At each the tool averages pot samples
+read with zero torque commanded. Each pot's line is fitted by least squares to the (mean
+counts, known angle) pairs of the poses where its angle is known (POT3 reads th2 + th3, so
+it needs th2 known too), residuals are printed per pot in degrees and suspicious samples
+flagged: a large spread while holding, a residual outlier, counts at 0 or 4095. The result
+is a ROS 2 parameter file (config/right_arm.yaml format) that the node loads unchanged with
+--params-file; the samples are saved as CSV beside it, so a session can be fitted again.
+
+With --csv the tool fits such a CSV instead (for scripts and tests): one row per pose and
+pot, `pot,angle_deg,count,count,...`, pot 1..6, angle_deg of what the pot reads. Lines
+starting with '#' and a first line starting with 'pot' are skipped.
+
+Exit status: 0 calibration written; 1 an error (device, file, fit) or suspicious samples
+(nothing written unless --force); 2 bad command line.
+"""
+import argparse
+import csv
+import math
+from pathlib import Path
+import sys
+import time
+from typing import NamedTuple
+
+from kraft_master_driver import kinematics
+from kraft_master_driver.calibration import (
+    ArmCalibration, CalibrationError, POT_COUNT, POT_JOINT, POT_MAX, POT_MEASURES)
+from kraft_master_driver.device import KmcDevice
+from kraft_master_driver.protocol import CODECS
+import numpy as np
+
+ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
+SIM_PORT = 'sim'
+JOINT_KEYS = tuple(f'th{i}' for i in range(1, 7))
+MAX_MISSED_REPLIES = 50  # consecutive cycles without a reply before sampling gives up
+STOP_OVERSHOOT = math.radians(5.0)  # how far beyond a stop the simulated hand pushes
+STOP_TOLERANCE = 1e-9  # rad: a joint on its stop (th3 = q3 - q2 rounds)
+SETTLE_TIMEOUT = 20.0  # s the simulated hand may take to come to rest
+SETTLE_POLL = 0.02  # s between looks at the simulated arm
+SETTLE_STILL_POLLS = 5  # consecutive looks without motion that count as at rest
+
+
+class Station(NamedTuple):
+    """A pose the operator holds: joint angles th1..th6 in degrees, NaN where not known."""
+
+    label: str
+    joints_deg: tuple
+
+    def pot_angles_deg(self):
+        """Return the angle (deg) each pot POT1..POT6 reads at this pose, NaN if not known."""
+        theta = np.array(self.joints_deg, dtype=float)
+        measured = theta[list(POT_JOINT)]
+        measured[2] += theta[1]  # POT3 reads th2 + th3
+        return measured
+
+
+class Hold(NamedTuple):
+    """The pot counts read while the operator held one station: (samples, 6)."""
+
+    station: Station
+    counts: np.ndarray
+
+
+class Row(NamedTuple):
+    """Samples of one pot at one known angle."""
+
+    pot: int  # 1..6
+    angle_deg: float
+    counts: np.ndarray
+    label: str = ''
+
+
+class Flag(NamedTuple):
+    """A suspicious row: its index in the rows fitted and what is wrong."""
+
+    row: int
+    message: str
+
+
+class Fit(NamedTuple):
+    """A least-squares calibration with per-row residuals (deg) and the rows flagged."""
+
+    result: object  # calibration.FitResult
+    rows: list
+    residual_deg: np.ndarray
+    flags: list
+
+
+def stop_stations():
+    """Return the stations at the mechanical stops of Table II, in an order easy to follow."""
+    lower, upper = np.degrees(kinematics.joint_limits(0.0))
+    th2_max = upper[1]
+    elbow_upper_at_max = math.degrees(kinematics.joint_limits(math.radians(th2_max))[1][2])
+    unknown = math.nan
+
+    def pose(**angles):
+        return tuple(float(angles.get(key, unknown)) for key in JOINT_KEYS)
+
+    return [
+        Station(f'shoulder yaw at its {upper[0]:+g} deg stop', pose(th1=upper[0])),
+        Station(f'shoulder yaw at its {lower[0]:+g} deg stop', pose(th1=lower[0])),
+        Station(f'shoulder pitch at its {lower[1]:g} deg stop, elbow at its {lower[2]:g} deg '
+                'stop', pose(th2=lower[1], th3=lower[2])),
+        Station(f'shoulder pitch at its {lower[1]:g} deg stop, elbow at its {upper[2]:g} deg '
+                'stop', pose(th2=lower[1], th3=upper[2])),
+        Station(f'shoulder pitch at its {th2_max:g} deg stop, elbow at its '
+                f'{elbow_upper_at_max:g} deg stop', pose(th2=th2_max, th3=elbow_upper_at_max)),
+        Station(f'shoulder pitch at its {th2_max:g} deg stop, elbow at its {lower[2]:g} deg '
+                'stop', pose(th2=th2_max, th3=lower[2])),
+        Station(f'wrist yaw at its {upper[3]:+g} deg stop', pose(th4=upper[3])),
+        Station(f'wrist yaw at its {lower[3]:+g} deg stop', pose(th4=lower[3])),
+        Station(f'wrist pitch at its {lower[4]:+g} deg stop', pose(th5=lower[4])),
+        Station(f'wrist pitch at its {upper[4]:+g} deg stop', pose(th5=upper[4])),
+        Station(f'wrist roll at its {upper[5]:+g} deg stop', pose(th6=upper[5])),
+        Station(f'wrist roll at its {lower[5]:+g} deg stop', pose(th6=lower[5])),
+    ]
+
+
+def parse_fixture(text):
+    """
+    Parse a fixture station: '[label:]th2=90,th3=-90' (joint angles in degrees).
+
+    Joints are th1..th6 or the joint names of kinematics.JOINT_NAMES.
+    """
+    label, _, assignments = text.rpartition(':')
+    keys = dict(zip(JOINT_KEYS, JOINT_KEYS), **dict(zip(kinematics.JOINT_NAMES, JOINT_KEYS)))
+    angles = {}
+    for item in filter(None, (part.strip() for part in assignments.split(','))):
+        key, _, value = item.partition('=')
+        if key.strip() not in keys:
+            raise ValueError(f'fixture {text!r}: unknown joint {key.strip()!r}, expected one '
+                             f'of {", ".join(JOINT_KEYS)} or a joint name')
+        try:
+            angle = float(value)
+        except ValueError:
+            raise ValueError(f'fixture {text!r}: {item!r} is not joint=degrees') from None
+        if not math.isfinite(angle) or abs(angle) > 360.0:
+            raise ValueError(f'fixture {text!r}: {item!r} is not an angle within +-360 deg')
+        angles[keys[key.strip()]] = angle
+    if not angles:
+        raise ValueError(f'fixture {text!r}: no joint angles, expected e.g. th2=90,th3=-90')
+    joints = tuple(angles.get(key, math.nan) for key in JOINT_KEYS)
+    return Station(label or 'fixture ' + ', '.join(f'{k}={v:g}' for k, v in angles.items()),
+                   joints)
+
+
+# -- sampling the device ---------------------------------------------------------------------
+
+
+def sample(device, count):
+    """Read `count` pot frames with zero torque commanded; return them as (count, 6)."""
+    frames, missed = [], 0
+    while len(frames) < count:
+        result = device.cycle(ZERO_TORQUES)
+        if result is None:
+            missed += 1
+            if missed >= MAX_MISSED_REPLIES:
+                raise CalibrationError(f'{device.port}: no reply from the device '
+                                       f'({device.last_error or "timeouts"})')
+            continue
+        missed = 0
+        frames.append(result.frame.pots)
+    return np.array(frames, dtype=float)
+
+
+def collect(device, stations, samples, operator):
+    """
+    Take each station in turn; return the list of Hold and whether the operator quit.
+
+    operator(station) gets the arm held at the station and returns '' to sample it, 's' to
+    skip it or 'q' to stop. Ctrl-C stops as 'q' does: the poses taken so far are kept.
+    """
+    holds = []
+    try:
+        for station in stations:
+            answer = operator(station)
+            if answer == 'q':
+                return holds, True
+            if answer != 's':
+                holds.append(Hold(station, sample(device, samples)))
+    except KeyboardInterrupt:
+        return holds, True
+    return holds, False
+
+
+class ConsoleOperator:
+    """A person at the device: the station is shown and the answer read from `ask`."""
+
+    def __init__(self, ask=input):
+        """Read answers with `ask(prompt)` (default: input)."""
+        self._ask = ask
+        self.count = 0
+
+    def __call__(self, station):
+        """Ask for the station; return '', 's' or 'q'."""
+        self.count += 1
+        answer = self._ask(f'[{self.count}] Hold the arm with {station.label}, then press '
+                           'Enter (s: skip, q: quit): ')
+        return answer.strip().lower()[:1]
+
+
+class SimulatedOperator:
+    """The simulator's operator hand: it pushes the arm to each station and waits for rest."""
+
+    def __init__(self, simulator, log=print):
+        """Work the hand of a running SimulatedKraftMaster created with operator='hold'."""
+        self.simulator = simulator
+        self._log = log
+        self._home = None
+
+    def target(self, station):
+        """
+        Return (actuator coordinates the hand pulls toward (rad), which joints meet a stop).
+
+        The hand pushes beyond a stop in the coordinate the stop limits (q3 = th2 + th3 for
+        the elbow), so the arm rests on the stop itself, not where friction leaves it.
+        """
+        from kraft_master_driver.simulator import joints_to_actuators, Workspace
+        if self._home is None:
+            self._home = Workspace().home()
+        known = np.radians(np.array(station.joints_deg, dtype=float))
+        theta = np.where(np.isnan(known), self._home, known)
+        lower, upper = kinematics.joint_limits(theta[1])
+        beyond = np.where(np.isclose(known, upper), 1.0,
+                          np.where(np.isclose(known, lower), -1.0, 0.0))
+        return joints_to_actuators(theta) + STOP_OVERSHOOT * beyond, beyond != 0.0
+
+    def __call__(self, station):
+        """Move the hand to `station`, wait until the arm rests (on its stops); return ''."""
+        self._log(f'simulated operator: {station.label}')
+        target, at_stop = self.target(station)
+        stops = np.radians(np.array(station.joints_deg, dtype=float))[at_stop]
+        self.simulator.hold_at(target)
+        still, previous = 0, None
+        deadline = time.monotonic() + SETTLE_TIMEOUT
+        while time.monotonic() < deadline:
+            time.sleep(SETTLE_POLL)
+            angles = self.simulator.joint_angles()
+            still = still + 1 if previous is not None and np.array_equal(angles, previous) else 0
+            previous = angles
+            # Stillness alone could be a starved simulator thread: stops must be reached too.
+            if still >= SETTLE_STILL_POLLS and np.allclose(angles[at_stop], stops, rtol=0.0,
+                                                           atol=STOP_TOLERANCE):
+                break
+        return ''
+
+
+def holds_to_rows(holds):
+    """Return one Row per station and pot whose angle is known there."""
+    rows = []
+    for hold in holds:
+        for pot, angle in enumerate(hold.station.pot_angles_deg()):
+            if np.isfinite(angle):
+                rows.append(Row(pot + 1, float(angle), hold.counts[:, pot], hold.station.label))
+    return rows
+
+
+# -- CSV -------------------------------------------------------------------------------------
+
+
+def write_rows(path, rows):
+    """Write rows as CSV: pot, angle_deg, then the count samples."""
+    with open(path, 'w', newline='', encoding='utf-8') as stream:
+        stream.write('# kraft_master_calibrate samples: pot (1..6), angle_deg of what the pot '
+                     'reads (POT3: th2 + th3), count samples...\n')
+        writer = csv.writer(stream)
+        writer.writerow(['pot', 'angle_deg', 'counts'])
+        for row in rows:
+            writer.writerow([row.pot, repr(row.angle_deg)] + [f'{c:g}' for c in row.counts])
+
+
+def read_rows(path):
+    """Read rows from a CSV written by write_rows (or by hand); raise CalibrationError."""
+    rows = []
+    try:
+        with open(path, newline='', encoding='utf-8') as stream:
+            lines = [(number, line) for number, line in enumerate(stream, 1)
+                     if line.strip() and not line.lstrip().startswith('#')]
+    except (OSError, UnicodeDecodeError) as error:
+        raise CalibrationError(f'{path}: cannot read: {error}') from None
+    if lines and lines[0][1].lstrip().lower().startswith('pot'):
+        lines = lines[1:]
+    for number, line in lines:
+        where = f'{path}:{number}'
+        fields = next(csv.reader([line]))
+        if len(fields) < 3:
+            raise CalibrationError(f'{where}: expected pot,angle_deg,count[,count...], '
+                                   f'got {line.strip()!r}')
+        try:
+            pot, angle = int(fields[0]), float(fields[1])
+            counts = np.array([float(x) for x in fields[2:]])
+        except ValueError:
+            raise CalibrationError(f'{where}: not numbers: {line.strip()!r}') from None
+        if not 1 <= pot <= POT_COUNT:
+            raise CalibrationError(f'{where}: pot {pot} is not 1..{POT_COUNT}')
+        if not (math.isfinite(angle) and abs(angle) <= 360.0):
+            raise CalibrationError(f'{where}: angle {angle:g} deg is not within +-360')
+        if not np.all(np.isfinite(counts)) or counts.min() < 0 or counts.max() > POT_MAX:
+            raise CalibrationError(f'{where}: counts must be numbers within 0..{POT_MAX}')
+        rows.append(Row(pot, angle, counts, f'line {number}'))
+    if not rows:
+        raise CalibrationError(f'{path}: no samples')
+    return rows
+
+
+# -- fitting ---------------------------------------------------------------------------------
+
+
+def fit_rows(arm, rows, max_spread=3.0, max_residual_deg=0.5, source='least-squares fit'):
+    """
+    Fit each pot's line to the mean counts of its rows; return a Fit.
+
+    Flags rows whose counts spread (standard deviation) more than `max_spread` counts, that
+    touch 0 or POT_MAX, or whose residual exceeds `max_residual_deg`. Raises
+    CalibrationError naming the pots that lack two distinct poses.
+    """
+    means = np.array([row.counts.mean() for row in rows])
+    angles = np.radians([row.angle_deg for row in rows])
+    pots = np.array([row.pot for row in rows])
+    lacking = [f'POT{pot} ({POT_MEASURES[pot - 1]})' for pot in range(1, POT_COUNT + 1)
+               if np.unique(np.round(means[pots == pot], 6)).size < 2]
+    if lacking:
+        raise CalibrationError(f'{source}: need poses at two or more distinct counts for '
+                               f'{", ".join(lacking)}')
+    result = ArmCalibration.fit(
+        arm, [(means[pots == pot], angles[pots == pot]) for pot in range(1, POT_COUNT + 1)],
+        source=source)
+    calibration = result.calibration
+    index = pots - 1
+    fitted = calibration.offset[index] + calibration.slope[index] * means
+    residual_deg = np.degrees(angles - fitted)
+    flags = []
+    for number, (row, residual) in enumerate(zip(rows, residual_deg)):
+        where = f'POT{row.pot} at {row.angle_deg:g} deg ({row.label or f"row {number + 1}"})'
+        spread = row.counts.std()
+        if spread > max_spread:
+            flags.append(Flag(number, f'{where}: counts spread {spread:.1f} (limit '
+                                      f'{max_spread:g}): the arm moved while held?'))
+        if row.counts.min() <= 0 or row.counts.max() >= POT_MAX:
+            flags.append(Flag(number, f'{where}: counts reach 0 or {POT_MAX}: the pot is at '
+                                      'the end of its range or disconnected'))
+        if abs(residual) > max_residual_deg:
+            flags.append(Flag(number, f'{where}: residual {residual:+.3f} deg (limit '
+                                      f'{max_residual_deg:g}): wrong pose or a loose stop?'))
+    return Fit(result, rows, residual_deg, flags)
+
+
+def report_lines(fit):
+    """Return text lines: per pot, its line, pose count and residuals in degrees."""
+    calibration = fit.result.calibration
+    lines = ['pot   reads       poses  rms (deg)  max (deg)  deg/count   line']
+    for pot in range(POT_COUNT):
+        lines.append(
+            f'POT{pot + 1}  {POT_MEASURES[pot]:<10}  {fit.result.sample_count[pot]:5d}  '
+            f'{math.degrees(fit.result.rms_residual[pot]):9.4f}  '
+            f'{math.degrees(fit.result.max_residual[pot]):9.4f}  '
+            f'{math.degrees(calibration.slope[pot]):+.6f}  '
+            f'({calibration.pot_a[pot]:.1f}, {math.degrees(calibration.angle_a[pot]):+.3f} deg)'
+            f' - ({calibration.pot_b[pot]:.1f}, {math.degrees(calibration.angle_b[pot]):+.3f}'
+            ' deg)')
+    for pot, label, residual in zip([r.pot for r in fit.rows], [r.label for r in fit.rows],
+                                    fit.residual_deg):
+        lines.append(f'  POT{pot} {label}: residual {residual:+.4f} deg')
+    return lines
+
+
+# -- command line ----------------------------------------------------------------------------
+
+
+def _parser():
+    parser = argparse.ArgumentParser(
+        prog='kraft_master_calibrate',
+        description='Least-squares calibration of the pots of one Kraft Master arm: hold the '
+                    'arm at known poses (the mechanical stops, fixtures), or fit a CSV of '
+                    'samples; writes a parameter file the node loads with --params-file.')
+    parser.add_argument('--arm', choices=kinematics.ARMS, required=True)
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument('--port', help="serial port or pyserial URL of the device; 'sim' "
+                                       'starts the built-in simulator and its operator hand')
+    source.add_argument('--csv', metavar='FILE', help='fit these samples instead: rows of '
+                                                      'pot,angle_deg,count,count,...')
+    parser.add_argument('--out', metavar='YAML', help='parameter file to write (default: '
+                                                      '<arm>_arm_calibrated.yaml)')
+    parser.add_argument('--samples', type=int, default=200,
+                        help='pot frames averaged at each pose (default 200)')
+    parser.add_argument('--fixture', action='append', default=[], metavar='[LABEL:]th2=90,...',
+                        help='an extra pose at known joint angles (deg); repeatable')
+    parser.add_argument('--no-stops', action='store_true',
+                        help='use only the --fixture poses, not the mechanical stops')
+    parser.add_argument('--max-spread', type=float, default=3.0,
+                        help='flag a pose whose counts spread more (std, counts; default 3)')
+    parser.add_argument('--max-residual', type=float, default=0.5,
+                        help='flag a pose whose residual is larger (deg; default 0.5)')
+    parser.add_argument('--force', action='store_true',
+                        help='write the calibration even with flagged samples')
+    parser.add_argument('--baud', type=int, default=1_000_000, help='baud rate (bit/s)')
+    parser.add_argument('--codec', choices=sorted(CODECS), default='kraft-default',
+                        help='frame codec of the link (default kraft-default)')
+    parser.add_argument('--sim-calibration', metavar='YAML',
+                        help="with --port sim: the simulated device's true calibration")
+    parser.add_argument('--sim-noise', type=float, default=1.0,
+                        help='with --port sim: pot noise, counts (1 sigma, default 1)')
+    return parser
+
+
+def _stations(args, parser):
+    try:
+        fixtures = [parse_fixture(text) for text in args.fixture]
+    except ValueError as error:
+        parser.error(str(error))
+    stations = ([] if args.no_stops else stop_stations()) + fixtures
+    if not stations:
+        parser.error('--no-stops needs at least one --fixture')
+    return stations
+
+
+def _simulator(args):
+    """Return the built-in simulator of --port sim, not started."""
+    from kraft_master_driver.simulator import SimulatedKraftMaster
+    truth = ArmCalibration.from_yaml(args.sim_calibration) if args.sim_calibration else None
+    try:
+        return SimulatedKraftMaster(arm=args.arm, calibration=truth, operator='hold',
+                                    pot_noise_counts=args.sim_noise)
+    except ValueError as error:
+        raise CalibrationError(f'--port sim: {error}') from None
+
+
+def _measure(args, stations, out, ask):
+    """Sample the device at each station; save the samples CSV; return (rows, quit)."""
+    simulator = _simulator(args) if args.port == SIM_PORT else None
+    try:
+        try:
+            device = KmcDevice(args.port if simulator is None else simulator.start(),
+                               baudrate=args.baud, codec=args.codec)
+        except ValueError as error:
+            raise CalibrationError(f'{args.port}: {error}') from None
+        operator = ConsoleOperator(ask) if simulator is None else SimulatedOperator(simulator)
+        with device:
+            if not device.link_up:
+                raise CalibrationError(f'{args.port}: {device.last_error}')
+            holds, quit_early = collect(device, stations, args.samples, operator)
+    finally:
+        if simulator is not None:
+            simulator.stop()
+    rows = holds_to_rows(holds)
+    if rows:
+        samples_path = out.with_name(out.stem + '_samples.csv')
+        write_rows(samples_path, rows)
+        print(f'samples saved to {samples_path}')
+    return rows, quit_early
+
+
+def main(argv=None, ask=input):
+    """Run the calibration; return the exit status (0 written, 1 error or flagged)."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.samples < 1:
+        parser.error('--samples must be at least 1')
+    if args.sim_calibration and args.port != SIM_PORT:
+        parser.error('--sim-calibration needs --port sim')
+    out = Path(args.out or f'{args.arm}_arm_calibrated.yaml')
+    try:
+        if args.csv:
+            rows, source = read_rows(args.csv), args.csv
+        else:
+            rows, quit_early = _measure(args, _stations(args, parser), out, ask)
+            if quit_early:
+                print('stopped by the operator: no calibration written')
+                return 1
+            source = f'{args.port} ({len(rows)} pose and pot readings)'
+        fit = fit_rows(args.arm, rows, args.max_spread, args.max_residual,
+                       source=f'least-squares fit of {source}')
+    except (CalibrationError, OSError) as error:
+        print(f'kraft_master_calibrate: {error}', file=sys.stderr)
+        return 1
+    for line in report_lines(fit):
+        print(line)
+    for flag in fit.flags:
+        print(f'SUSPICIOUS: {flag.message}')
+    if fit.flags and not args.force:
+        print(f'{len(fit.flags)} suspicious samples: {out} not written; take those poses '
+              'again, or pass --force to write it anyway', file=sys.stderr)
+        return 1
+    worst = max(math.degrees(x) for x in fit.result.max_residual)
+    try:
+        fit.result.calibration.to_yaml(out, header=(
+            f'{args.arm} arm, kraft_master_calibrate, {time.strftime("%Y-%m-%d %H:%M:%S")}\n'
+            f'{fit.result.calibration.source}; largest residual {worst:.4f} deg'))
+    except OSError as error:
+        print(f'kraft_master_calibrate: cannot write {out}: {error}', file=sys.stderr)
+        return 1
+    print(f'wrote {out}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
