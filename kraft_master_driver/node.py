@@ -25,6 +25,7 @@ from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 import rclpy
 import rclpy.exceptions
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -191,11 +192,13 @@ class KraftMasterNode(Node):
         self.force.enabled = self.config['force_enabled_at_start']
 
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.joint_pub = self.create_publisher(JointState, 'joint_states', state_qos)
-        self.pose_pub = self.create_publisher(PoseStamped, 'pose', state_qos)
-        self.pots_pub = self.create_publisher(JointState, 'pots', state_qos)
-        self.rate_pub = self.create_publisher(TwistStamped, 'rate_command', state_qos)
-        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', state_qos)
+        # No QoS event handlers on the publishers: each one is work for every executor wake-up.
+        quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.diag_pub = (
+            self.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
+            for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
+                                    (JointState, 'pots'), (TwistStamped, 'rate_command'),
+                                    (DiagnosticArray, 'diagnostics')))
         self._make_messages()
         self.create_subscription(
             WrenchStamped, 'wrench', self._on_wrench,
