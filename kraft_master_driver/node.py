@@ -20,7 +20,8 @@ from kraft_master_driver.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
 from kraft_master_driver.protocol import CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE
-from kraft_master_driver.teleop import BASE_FRAME, ForceReflection, rate_command, WRIST_FRAME
+from kraft_master_driver.teleop import (
+    BASE_FRAME, ForceReflection, rate_command, STALE, WRIST_FRAME)
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 import rclpy
@@ -144,6 +145,8 @@ def _descriptor(name, spec):
 def check_value(name, value):
     """Return `value` if it suits parameter `name`, else raise ParameterError."""
     spec = PARAMETERS[name]
+    if value is None:
+        raise ParameterError(f'parameter {name}: no value (an empty list has no type)')
     if spec.choices and value not in spec.choices:
         raise ParameterError(
             f'parameter {name}: {value!r} is not one of {", ".join(spec.choices)}')
@@ -226,6 +229,8 @@ class KraftMasterNode(Node):
         self._warn_if_wire_limited()
 
         self.loop = LoopStatistics()
+        self._replies_missing = 0
+        self._last_force_state = None
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
         self.output = None
         self.pose = None
@@ -256,6 +261,12 @@ class KraftMasterNode(Node):
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
                        if key.startswith('calibration.')}
+        given = [key for key in calibration if f'calibration.{key}' in self._parameter_overrides]
+        if given and len(given) < len(calibration):
+            missing = sorted(set(calibration) - set(given))
+            raise ParameterError(
+                f'parameter calibration.{missing[0]}: missing; a calibration must give all of '
+                f'{", ".join("calibration." + key for key in calibration)}')
         try:
             return ArmCalibration.from_parameters(self.arm, calibration, 'parameters')
         except CalibrationError as error:
@@ -299,14 +310,23 @@ class KraftMasterNode(Node):
                         rotation, jacobian, started, pose=self.pose, centre=self.centre,
                         cartesian_velocity=self.cartesian_velocity)
                     torques = self.output.actuator
+                    if self.output.state == STALE and self._last_force_state != STALE:
+                        self.get_logger().warning(
+                            f'no wrench for {self.config["wrench_timeout"]:g} s '
+                            '(wrench_timeout): torques zeroed', throttle_duration_sec=1.0)
+                    self._last_force_state = self.output.state
                 c1 = cpu()
                 result = self.device.cycle(torques)
                 c2 = cpu()
                 rotation = jacobian = None
                 if result is None:
                     self.velocity.reset()
+                    self._warn_no_reply()
                     c4 = c3 = c2
                 else:
+                    if self._replies_missing:
+                        self._replies_missing = 0
+                        self.get_logger().info('the device answers again')
                     self.loop.round_trips.add(int(result.round_trip_s * 1e9))
                     theta, velocity, pose, jacobian = self._estimate(result)
                     rotation = pose[:3, :3]
@@ -334,6 +354,16 @@ class KraftMasterNode(Node):
                 skipped = (now - deadline) // period_ns
                 self.loop.missed += skipped
                 deadline += skipped * period_ns
+
+    def _warn_no_reply(self):
+        """Say why this cycle got no pot frame; its torques, and the next cycle's, are zero."""
+        self._replies_missing += 1
+        if self.device.link_up:
+            reason = (f'no reply within reply_timeout {self.config["reply_timeout"]:g} s '
+                      f'({self._replies_missing} in a row)')
+        else:
+            reason = f'link down: {self.device.last_error}; reconnecting'
+        self.get_logger().warning(f'{reason}: torques zeroed', throttle_duration_sec=1.0)
 
     def _estimate(self, result):
         """Joint angles, velocity, wrist pose and Jacobian of one pot frame."""
