@@ -19,7 +19,8 @@ from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
-from kraft_master_driver.protocol import CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE
+from kraft_master_driver.protocol import (
+    CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.teleop import (
     BASE_FRAME, ForceReflection, rate_command, STALE, WRIST_FRAME)
 from rcl_interfaces.msg import (
@@ -231,6 +232,7 @@ class KraftMasterNode(Node):
         self.loop = LoopStatistics()
         self._replies_missing = 0
         self._last_force_state = None
+        self._errors_reported = {}
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
         self.output = None
         self.pose = None
@@ -498,10 +500,21 @@ class KraftMasterNode(Node):
         self.config.update(changes)
         return SetParametersResult(successful=True)
 
+    def _warn_link_errors(self, device_stats):
+        """Name the decoder errors of the last diagnostics period, if there were any."""
+        grown = {kind: device_stats[kind] - self._errors_reported.get(kind, 0)
+                 for kind in ERROR_KINDS}
+        self._errors_reported = {kind: device_stats[kind] for kind in ERROR_KINDS}
+        if any(grown.values()):
+            self.get_logger().warning(
+                'bad bytes from the device, frames dropped: ' + ', '.join(
+                    f'{kind} +{count}' for kind, count in grown.items() if count))
+
     def _publish_diagnostics(self):
         period = self.loop.periods.percentiles_s()
         round_trip = self.loop.round_trips.percentiles_s()
         device = self.device.stats
+        self._warn_link_errors(device)
         link_ok = self.device.link_up
         values = {
             'loop rate (Hz)': f'{self.loop.rate_hz():.1f}',

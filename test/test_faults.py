@@ -21,6 +21,7 @@ it publishes WrenchStamped messages as the JSON lines on its stdin say.
 """
 import bisect
 import concurrent.futures
+import itertools
 import json
 import math
 import operator
@@ -82,6 +83,7 @@ CYCLE_COUNTERS = ('link timeouts', 'link stale_replies', 'force watchdog_trips',
                   'missed cycles')
 
 FAULT_TABLE = []
+SESSION_NUMBERS = itertools.count()
 first_item = operator.itemgetter(0)
 
 
@@ -192,11 +194,11 @@ class Driver:
 class WrenchSource:
     """This file run as a separate process that publishes wrenches as told."""
 
-    def __init__(self, env, wait):
-        """Start the process in `env`; `wait(condition)` waits for its replies, spinning."""
+    def __init__(self, env, namespace, wait):
+        """Start the process in `env` and `namespace`; `wait(condition)` spins while waiting."""
         self.process = subprocess.Popen(
-            [sys.executable, __file__], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            text=True, env=env)
+            [sys.executable, __file__, '--ros-args', '-r', f'__ns:={namespace}'],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.replies = []
         self._wait = wait
         threading.Thread(target=self._read, daemon=True).start()
@@ -252,11 +254,12 @@ class Observer:
     with the simulator thread of this process.
     """
 
-    def __init__(self, domain_id):
-        """Join DDS domain `domain_id`."""
+    def __init__(self, domain_id, namespace):
+        """Join DDS domain `domain_id`, in `namespace`."""
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('fault_observer', context=self.context)
+        self.node = rclpy.create_node('fault_observer', namespace=namespace,
+                                      context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
@@ -313,9 +316,11 @@ class FaultSession:
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(SIMULATOR_SWITCH_INTERVAL_S)
         self.domain_id = next_domain_id()
+        # A namespace of its own: other test runs on this machine may share the domain.
+        self.namespace = f'/faults_{os.getpid()}_{next(SESSION_NUMBERS)}'
         self.simulator = SimulatedKraftMaster(arm='right', operator='hold', record=record)
         self.port = self.simulator.start()
-        self.client = Observer(self.domain_id)
+        self.client = Observer(self.domain_id, self.namespace)
         self.states = 0
         self.client.node.create_subscription(
             JointState, 'joint_states', self._count_state,
@@ -323,9 +328,9 @@ class FaultSession:
         self.diagnostics = self.watch('diagnostics')
         self.driver = Driver(prefix, self.domain_id, [
             ('port', self.port), ('loop_rate_hz', loop_rate_hz),
-            ('force_enabled_at_start', 'true'), *parameters])
-        self.source = WrenchSource(
-            installed_env(prefix, self.domain_id), self.wait) if wrench_source else None
+            ('force_enabled_at_start', 'true'), *parameters], namespace=self.namespace)
+        self.source = WrenchSource(installed_env(prefix, self.domain_id), self.namespace,
+                                   self.wait) if wrench_source else None
         self._parameters = None
         try:
             self.wait(lambda: self.states or self.driver.process.poll() is not None)
@@ -385,7 +390,8 @@ class FaultSession:
     def parameter_client(self):
         """Return a parameter client of the driver node."""
         if self._parameters is None:
-            self._parameters = AsyncParameterClient(self.client.node, '/kraft_master_node')
+            self._parameters = AsyncParameterClient(self.client.node,
+                                                    f'{self.namespace}/kraft_master_node')
             assert self._parameters.wait_for_services(timeout_sec=20.0)
         return self._parameters
 
@@ -402,8 +408,8 @@ class FaultSession:
                                          self.driver.log_since(since_ns)), timeout)
         except AssertionError:
             raise MissingLogMessage(
-                f'no warning or error matching {pattern!r} in the driver log since the fault:\n'
-                + '\n'.join(self.driver.log_since(since_ns)[-10:])) from None
+                f'no warning or error matching {pattern!r} in the driver log since the fault '
+                f'({since_ns}); its last lines:\n' + '\n'.join(self.driver.lines[-10:])) from None
 
     def assert_alive(self):
         """Check that the driver runs and has not crashed."""
@@ -694,15 +700,16 @@ def inject_source_kill(session, env):
     """
     SIGKILL a wrench source mid-stream; return the Injected (fault_ns: the kill).
 
-    The steady source pauses while a second one, started in `env`, drives the torque; it
-    resumes once the watchdog has zeroed the torque and the diagnostics (`during`) show it.
+    A second source, started in `env`, drives the torque alone while the steady one pauses
+    (no watchdog trip before the kill); the steady one resumes once the watchdog has zeroed
+    the torque and the diagnostics (`during`) show it.
     """
-    session.source.switch(0.0)
-    killed = WrenchSource(env, session.wait)
+    killed = WrenchSource(env, session.namespace, session.wait)
     try:
         killed.wait_ready()
-        start_ns, _ = killed.switch(KILLED_SOURCE_RATE_HZ)
-        session.wait_command(start_ns + int(2 * WRENCH_TIMEOUT_S * 1e9), zero=False)
+        killed.switch(KILLED_SOURCE_RATE_HZ)
+        paused_ns, _ = session.source.switch(0.0)
+        session.wait_command(paused_ns + int(2 * WRENCH_TIMEOUT_S * 1e9), zero=False)
         before = session.diagnostics_after(time.time_ns())
         kill_ns = killed.kill()
     finally:
@@ -1091,14 +1098,15 @@ def test_second_driver_on_the_same_port_retries_and_leaves_the_first_alone(insta
     session = FaultSession(install_prefix)
     second = None
     try:
-        second_diagnostics = session.watch('/second/diagnostics')
+        second_namespace = f'{session.namespace}_second'
+        second_diagnostics = session.watch(f'{second_namespace}/diagnostics')
         session.wait_torque()
         before = session.diagnostics_after(time.time_ns())
         device_errors = session.simulator.stats['decode_errors']
         start_ns = time.time_ns()
         second = Driver(install_prefix, session.domain_id, [
             ('port', session.port), ('loop_rate_hz', LOOP_RATE_HZ),
-            ('force_enabled_at_start', 'true')], namespace='/second')
+            ('force_enabled_at_start', 'true')], namespace=second_namespace)
         session.wait(lambda: second.log_since(start_ns, ('ERROR', 'WARN')))
         assert re.search(r'busy|lock', second.output, re.IGNORECASE), second.output
         first = session.diagnostics_after(start_ns, second_diagnostics)
@@ -1143,7 +1151,7 @@ def run_wrench_source():
     Each line is {"rate_hz", "wrench", "frame_id", "stamp"}; prints 'ready' once the driver
     subscribes and 'switched <time_ns> <messages published before>' as each line takes effect.
     """
-    rclpy.init()
+    rclpy.init(args=sys.argv)
     node = rclpy.create_node('fault_wrench_source')
     publisher = node.create_publisher(
         WrenchStamped, 'wrench', QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
