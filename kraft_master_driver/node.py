@@ -26,8 +26,8 @@ from kraft_master_driver.teleop import (
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 import rclpy
-import rclpy.exceptions
 from rclpy.event_handler import PublisherEventCallbacks
+import rclpy.exceptions
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy

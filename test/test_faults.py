@@ -1048,7 +1048,8 @@ class TestRunTimeParameters:
         assert unchanged == current
         later = torque_on(session, time.time_ns())
         session.assert_alive()
-        assert all(abs(a - b) <= max(5.0, 0.02 * abs(a)) for a, b in zip(torque, later)), (
+        # The held arm settles a little under its torque; a refused change must not move it.
+        assert all(abs(a - b) <= max(5.0, 0.05 * abs(a)) for a, b in zip(torque, later)), (
             torque, later)
         record('run time', f'{name} {kind}', outcome=result.reason)
 
