@@ -546,6 +546,11 @@ class KraftMasterNode(Node):
 
     # -- shutdown ------------------------------------------------------------------------
 
+    def destroy_node(self):
+        """Stop the device first (zero torques), then the node."""
+        self.stop()
+        super().destroy_node()
+
     def stop(self):
         """Stop the loop thread, write zero torques, close the port and the simulator."""
         self._running = False
@@ -556,15 +561,13 @@ class KraftMasterNode(Node):
             self.simulator.stop()
 
 
-def main(args=None):
-    """Run the node until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
-    # The loop thread must get the GIL soon after it wakes, not up to 5 ms (the default) later.
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+def run_node(make_node, program, args=None):
+    """Spin the node make_node() returns until Ctrl-C or SIGTERM; return the exit code."""
     rclpy.init(args=args)
     node = None
     exit_code = 0
     try:
-        node = KraftMasterNode()
+        node = make_node()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -573,14 +576,20 @@ def main(args=None):
         if rclpy.ok():
             raise
     except ParameterError as error:
-        print(f'kraft_master_node: {error}', file=sys.stderr)
+        print(f'{program}: {error}', file=sys.stderr)
         exit_code = 1
     finally:
         if node is not None:
-            node.stop()
             node.destroy_node()
         rclpy.try_shutdown()
     return exit_code
+
+
+def main(args=None):
+    """Run the driver until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    # The loop thread must get the GIL soon after it wakes, not up to 5 ms (the default) later.
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    return run_node(KraftMasterNode, 'kraft_master_node', args)
 
 
 if __name__ == '__main__':

@@ -20,11 +20,11 @@ import time
 from typing import NamedTuple
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from kraft_master_driver.node import ParameterError, run_node
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 import rclpy.exceptions
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -272,10 +272,6 @@ PARAMETERS = {
 }
 
 
-class ParameterError(ValueError):
-    """A parameter value the slave cannot run with; the message names the parameter."""
-
-
 def _stamp(msg, time_msg, frame_id):
     msg.header.stamp = time_msg
     msg.header.frame_id = frame_id
@@ -380,26 +376,7 @@ class SlaveSimNode(Node):
 
 def main(args=None):
     """Run the slave until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = SlaveSimNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # A signal can shut the context down while the executor takes a message.
-        if rclpy.ok():
-            raise
-    except ParameterError as error:
-        print(f'kraft_master_slave_sim: {error}', file=sys.stderr)
-        exit_code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return run_node(SlaveSimNode, 'kraft_master_slave_sim', args)
 
 
 if __name__ == '__main__':
