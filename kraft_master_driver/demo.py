@@ -3,8 +3,8 @@
 """
 kraft_master_demo: the paper's worked examples, then simulated teleoperation, live.
 
-The driver runs against its built-in simulated hand controller (a real pseudo-terminal),
-whose simulated operator pushes the wrist down and back; the simulated slave arm follows the
+The driver runs against the simulated hand controller (its own process, on a real
+pseudo-terminal), whose simulated operator pushes the wrist down and back; the simulated slave arm follows the
 master's pose, meets a stiff wall 40 mm down, and its contact wrench is reflected to the
 master as joint torques. A few refreshed lines show what happens.
 """
@@ -19,8 +19,9 @@ from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
+SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulator', '--operator', 'push']
 DRIVER = [sys.executable, '-m', 'kraft_master_driver.node', '--ros-args',
-          '-p', 'port:=sim', '-p', 'sim_operator:=push', '-p', 'force_enabled_at_start:=true']
+          '-p', 'force_enabled_at_start:=true']
 SLAVE = [sys.executable, '-m', 'kraft_master_driver.slave_sim']
 
 
@@ -107,11 +108,10 @@ class Readout:
 
 
 def stop(processes):
-    """Ctrl-C each process (the driver then zeroes its torques), then make sure they are gone."""
+    """Ctrl-C each process in turn (the driver first: it zeroes the device's torques)."""
     for process in processes:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
-    for process in processes:
         try:
             process.wait(timeout=10)
         except subprocess.TimeoutExpired:
@@ -121,8 +121,11 @@ def stop(processes):
 
 def teleoperate(duration, out=sys.stdout):
     """Run driver and slave for `duration` s (or until Ctrl-C), refreshing the readout."""
-    processes = [subprocess.Popen(DRIVER, stdin=subprocess.DEVNULL),
-                 subprocess.Popen(SLAVE, stdin=subprocess.DEVNULL)]
+    simulator = subprocess.Popen(SIMULATOR, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                 text=True)
+    port = simulator.stdout.readline().partition('port: ')[2].strip()
+    processes = [subprocess.Popen([*DRIVER, '-p', f'port:={port}'], stdin=subprocess.DEVNULL),
+                 subprocess.Popen(SLAVE, stdin=subprocess.DEVNULL), simulator]
     readout = Readout()
     interactive = out.isatty()
     shown = 0
