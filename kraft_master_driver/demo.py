@@ -4,9 +4,9 @@
 kraft_master_demo: the paper's worked examples, then simulated teleoperation, live.
 
 The driver runs against the simulated hand controller (its own process, on a real
-pseudo-terminal), whose simulated operator pushes the wrist down and back; the simulated slave arm follows the
-master's pose, meets a stiff wall 40 mm down, and its contact wrench is reflected to the
-master as joint torques. A few refreshed lines show what happens.
+pseudo-terminal), whose simulated operator pushes the wrist down and back; the simulated
+slave arm follows the master's pose, meets a stiff wall 40 mm down, and its contact wrench
+is reflected to the master as joint torques. A few refreshed lines show what happens.
 """
 import argparse
 import math
