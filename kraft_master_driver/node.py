@@ -306,17 +306,18 @@ class KraftMasterNode(Node):
             self.loop.record_start(started)
             try:
                 c0 = cpu()
-                torques = ZERO_TORQUES
+                torques, output = ZERO_TORQUES, None
                 if jacobian is not None:
-                    self.output = self.force.compute(
+                    output = self.force.compute(
                         rotation, jacobian, started, pose=self.pose, centre=self.centre,
                         cartesian_velocity=self.cartesian_velocity)
-                    torques = self.output.actuator
-                    if self.output.state == STALE and self._last_force_state != STALE:
+                    torques = output.actuator
+                    if output.state == STALE and self._last_force_state != STALE:
                         self.get_logger().warning(
                             f'no wrench for {self.config["wrench_timeout"]:g} s '
                             '(wrench_timeout): torques zeroed', throttle_duration_sec=1.0)
-                    self._last_force_state = self.output.state
+                    self._last_force_state = output.state
+                self.output = output
                 c1 = cpu()
                 result = self.device.cycle(torques)
                 c2 = cpu()
