@@ -186,7 +186,7 @@ def wrench_latencies(flips, commands):
     return latencies
 
 
-def run(rate_hz, duration, baud, domain_id, workdir):
+def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=()):
     """Run the four processes for `duration` s; return the figures of this run."""
     env = ros_env(domain_id)
     tag = f'{rate_hz:g}Hz_{baud or "pty"}'
@@ -196,6 +196,8 @@ def run(rate_hz, duration, baud, domain_id, workdir):
                  '-p', 'force_enabled_at_start:=true', '-p', 'reply_timeout:=0.02']
     if baud:
         node_args += ['-p', f'baud:={baud}']
+    for parameter in driver_parameters:
+        node_args += ['-p', parameter]
     driver = subprocess.Popen([sys.executable, '-m', 'kraft_master_driver.node', *node_args],
                               env=env, stdout=subprocess.DEVNULL)
     subscriber_out = str(workdir / f'subscriber_{tag}')
@@ -253,6 +255,22 @@ def run(rate_hz, duration, baud, domain_id, workdir):
     return figures
 
 
+def median_run(repeats):
+    """Each figure's median over repeated runs of one configuration (marked 'median')."""
+    def median_of(values):
+        if all(value == values[0] for value in values):
+            return values[0]
+        if isinstance(values[0], dict):
+            return {key: median_of([value[key] for value in values]) for key in values[0]}
+        if isinstance(values[0], (int, float)) and not isinstance(values[0], bool):
+            known = [value for value in values if value is not None]
+            return float(np.median(known)) if known else None
+        return values[0]
+    figures = median_of(repeats)
+    figures['median_of'] = len(repeats)
+    return figures
+
+
 # -- output ------------------------------------------------------------------------------------
 
 def fmt(value, digits=3):
@@ -260,7 +278,7 @@ def fmt(value, digits=3):
 
 
 def print_table(results):
-    print(f'{"run":>14} {"cycles/s":>9} {"late":>5} {"missed":>6} | period ms: {"med":>6} '
+    print(f'{"run":>21} {"cycles/s":>9} {"late":>5} {"missed":>6} | period ms: {"med":>6} '
           f'{"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: {"med":>6} {"p99":>6} '
           f'{"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | cpu us/cycle: '
           f'{"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire')
@@ -268,9 +286,11 @@ def print_table(results):
         period, sub, wrench, cpu = (r['period_ms'], r['pot_frame_to_subscriber_ms'],
                                     r['wrench_to_device_ms'], r['cpu_per_cycle_us'])
         name = f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}'
+        if 'median_of' in r:
+            name = f'median {name}'
         wire = r.get('achieved_over_wire_limited')
-        print(f'{name:>14} {r["cycles_per_s"]:9.1f} {r["late_cycles"]:5d} '
-              f'{r["missed_cycles"]:6d} |            {fmt(period["median"]):>6} '
+        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {r["late_cycles"]:5.0f} '
+              f'{r["missed_cycles"]:6.0f} |            {fmt(period["median"]):>6} '
               f'{fmt(period["p99"]):>6} {fmt(period["p99.9"]):>6} {fmt(period["max"]):>6} | '
               f'              {fmt(sub["median"]):>6} {fmt(sub["p99"]):>6} '
               f'{fmt(sub["max"]):>6} |                 {fmt(wrench["median"]):>6} '
@@ -286,6 +306,10 @@ def main():
     parser.add_argument('--rates', type=float, nargs='+', default=[500.0, 1000.0, 2000.0])
     parser.add_argument('--bauds', type=int, nargs='*', default=[115200, 1_000_000],
                         help='wire-timed runs at 1000 Hz (default 115200 1000000)')
+    parser.add_argument('--repeat', type=int, default=1,
+                        help='runs per configuration; with more than one, a median row too')
+    parser.add_argument('--set', metavar='NAME:=VALUE', nargs='*', default=[],
+                        help='extra driver parameters, e.g. loop_priority:=0')
     parser.add_argument('--json', help='write the figures here (default benchmarks/results/)')
     parser.add_argument('--role', choices=('subscriber', 'publisher'), help=argparse.SUPPRESS)
     parser.add_argument('--out', help=argparse.SUPPRESS)
@@ -300,16 +324,23 @@ def main():
     with tempfile.TemporaryDirectory() as workdir:
         runs = [(rate, None) for rate in args.rates] + [(1000.0, baud) for baud in args.bauds]
         for rate, baud in runs:
-            print(f'running {rate:g} Hz, {baud or "pty without wire timing"}, '
-                  f'{args.duration:g} s ...', flush=True)
-            results.append(run(rate, args.duration, baud, domain_id, pathlib.Path(workdir)))
+            repeats = []
+            for attempt in range(1, args.repeat + 1):
+                print(f'running {rate:g} Hz, {baud or "pty without wire timing"}, '
+                      f'{args.duration:g} s ({attempt}/{args.repeat}) ...', flush=True)
+                repeats.append(run(rate, args.duration, baud, domain_id,
+                                   pathlib.Path(workdir), args.set))
+            results.extend(repeats)
+            if args.repeat > 1:
+                results.append(median_run(repeats))
     print_table(results)
     out = pathlib.Path(args.json or REPO / 'benchmarks' / 'results' /
                        time.strftime('loop-%Y%m%d-%H%M%S.json'))
     out.parent.mkdir(parents=True, exist_ok=True)
     machine = {'platform': platform.platform(), 'python': platform.python_version(),
                'cpus': os.cpu_count()}
-    out.write_text(json.dumps({'machine': machine, 'runs': results}, indent=2, default=float))
+    out.write_text(json.dumps({'machine': machine, 'driver_parameters': args.set,
+                               'runs': results}, indent=2, default=float))
     print(f'figures written to {out}')
     return 0
 

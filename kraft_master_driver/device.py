@@ -9,6 +9,8 @@ mark the link down and close the port (after an attempt to write zero torques); 
 reopen it with exponential backoff. Zero torques are written before every close.
 """
 import math
+import os
+import select
 import threading
 import time
 from typing import NamedTuple
@@ -21,6 +23,8 @@ import serial
 SEQUENCE_MODULO = 256
 # The port's read timeout: reads wake up at least this often to check the reply deadline.
 READ_SLICE_S = 0.002
+# The most bytes one read on a device file takes; the decoder keeps what follows a reply.
+READ_CHUNK = 4096
 # A write that cannot complete within this time is a link fault. Generous: pyserial also
 # reports a timeout when the thread was merely descheduled that long during a write.
 WRITE_TIMEOUT_S = 1.0
@@ -101,6 +105,7 @@ class KmcDevice:
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         self._decoder = self.codec.reply_decoder()
         self._serial = None
+        self._io = None
         self._lock = threading.Lock()
         self._opened = False
         self._ever_up = False
@@ -195,7 +200,7 @@ class KmcDevice:
         command = self.codec.encode_command(sequence, counts)
         try:
             start_ns = time.perf_counter_ns()
-            self._serial.write(command)
+            self._io.write(command)
             counters['cycles'] += 1
             frame = self._read_reply(sequence, start_ns + int(self.reply_timeout * 1e9))
         except (OSError, serial.SerialException) as exc:
@@ -212,30 +217,35 @@ class KmcDevice:
         round_trip_s = (time.perf_counter_ns() - start_ns) * 1e-9
         self._consecutive_timeouts = 0
         counters['replies'] += 1
-        status = frame.status
-        if status & STATUS_CORRUPT_COMMAND:
-            counters['device_corrupt_commands'] += 1
-        if status & STATUS_COMMAND_TIMEOUT:
-            counters['device_command_timeouts'] += 1
         commanded_nm = tuple(count / scale for count, scale in zip(counts, self.torque_scale))
         return CycleResult(frame, receive_ns, round_trip_s, commanded_nm)
 
     def _read_reply(self, sequence, deadline_ns):
         """Read until the reply with this sequence arrives (return it) or the deadline (None)."""
-        port = self._serial
+        read = self._io.read
         decoder = self._decoder
         reply_size = self.codec.reply_size
-        want = reply_size - decoder.pending
         while True:
-            data = port.read(want)
+            data = read(reply_size - decoder.pending, deadline_ns)
             if data:
+                matching = None
                 for frame in decoder.feed(data):
+                    self._count_status(frame.status)
                     if frame.sequence == sequence:
-                        return frame
-                    self._counters['stale_replies'] += 1
+                        matching = frame
+                    else:
+                        self._counters['stale_replies'] += 1
+                if matching is not None:
+                    return matching
             if time.perf_counter_ns() >= deadline_ns:
                 return None
-            want = max(reply_size - decoder.pending, port.in_waiting)
+
+    def _count_status(self, status):
+        """Count what a reply's status byte reports, stale replies included."""
+        if status & STATUS_CORRUPT_COMMAND:
+            self._counters['device_corrupt_commands'] += 1
+        if status & STATUS_COMMAND_TIMEOUT:
+            self._counters['device_command_timeouts'] += 1
 
     def _next_sequence(self):
         """Advance and return the command sequence number."""
@@ -265,6 +275,7 @@ class KmcDevice:
             self._next_attempt = time.monotonic() + self._backoff
             return False
         self._serial = port
+        self._io = _DescriptorIo(port) if _has_descriptor(port) else _PyserialIo(port)
         self._decoder.reset()
         self._consecutive_timeouts = 0
         self._backoff = self.reconnect_min
@@ -293,7 +304,7 @@ class KmcDevice:
 
     def _close_port(self):
         """Write zero torques (best effort) and close the port if it is open."""
-        port, self._serial = self._serial, None
+        port, self._serial, self._io = self._serial, None, None
         self.link_up = False
         if port is None:
             return
@@ -306,6 +317,70 @@ class KmcDevice:
             port.close()
         except (OSError, serial.SerialException):
             pass
+
+
+def _has_descriptor(port):
+    """Tell whether port is a device file (tty, pty) rather than a URL handler."""
+    try:
+        port.fileno()
+    except (AttributeError, OSError, serial.SerialException):
+        return False
+    return isinstance(port, serial.Serial)
+
+
+class _PyserialIo:
+    """A URL port (socket://, loop://): pyserial's read and write."""
+
+    def __init__(self, port):
+        self._port = port
+
+    def write(self, data):
+        self._port.write(data)
+
+    def read(self, size, deadline_ns):
+        """Return up to the bytes waiting (at least size if they come within READ_SLICE_S)."""
+        port = self._port
+        return port.read(max(size, port.in_waiting))
+
+
+class _DescriptorIo:
+    """
+    A device file: os.read/os.write on its descriptor, waiting in poll().
+
+    pyserial's own calls cost two extra select()s and its Timeout bookkeeping per cycle.
+    """
+
+    def __init__(self, port):
+        self._fd = port.fileno()
+        self._readable = select.poll()
+        self._readable.register(self._fd, select.POLLIN)
+        self._writable = select.poll()
+        self._writable.register(self._fd, select.POLLOUT)
+
+    def write(self, data):
+        """Write all of data; SerialTimeoutException after WRITE_TIMEOUT_S of a full buffer."""
+        deadline = time.monotonic() + WRITE_TIMEOUT_S
+        while data:
+            try:
+                data = data[os.write(self._fd, data):]
+            except (BlockingIOError, InterruptedError):
+                wait_ms = (deadline - time.monotonic()) * 1e3
+                if wait_ms <= 0 or not self._writable.poll(wait_ms):
+                    raise serial.SerialTimeoutException('Write timeout') from None
+
+    def read(self, size, deadline_ns):
+        """Return the bytes waiting, or b'' if none came before deadline_ns (perf_counter_ns)."""
+        wait_ms = max(0.0, (deadline_ns - time.perf_counter_ns()) / 1e6)
+        if not self._readable.poll(wait_ms):
+            return b''
+        try:
+            data = os.read(self._fd, max(size, READ_CHUNK))
+        except (BlockingIOError, InterruptedError):
+            return b''
+        if not data:
+            raise serial.SerialException('the port reports data but returns none '
+                                         '(device disconnected?)')
+        return data
 
 
 def _positive(name, value):

@@ -26,6 +26,7 @@ The device answers each torque command with one pot reply in the link's frame fo
 """
 import argparse
 import collections
+import gc
 import math
 import os
 import queue
@@ -738,6 +739,7 @@ def main(argv=None):
     try:
         with simulator:
             print(f'port: {simulator.port}', flush=True)
+            gc.freeze()  # no full garbage collection passes over the set-up (node.run_node)
             while not stop.wait(0.5):
                 continue
             print(f'kraft_master_sim: stopped, {simulator.stats}', file=sys.stderr)

@@ -141,9 +141,9 @@ class DriverProcess:
     """An installed executable of the package, started as `ros2 run` would start it."""
 
     def __init__(self, prefix, domain_id, parameters=(), namespace=None, params_file=None,
-                 name='kraft_master_node'):
-        """Start executable `name` with `-p name:=value` for each of `parameters`."""
-        command = [str(executable(prefix, name)), '--ros-args']
+                 name='kraft_master_node', wrapper=()):
+        """Start `wrapper` + executable `name` with `-p name:=value` for each of `parameters`."""
+        command = [*wrapper, str(executable(prefix, name)), '--ros-args']
         if namespace:
             command += ['-r', f'__ns:={namespace}']
         if params_file:

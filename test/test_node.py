@@ -2,10 +2,12 @@
 # Licensed under the Apache License, Version 2.0
 """The installed kraft_master_node against a simulated device on a real pseudo-terminal."""
 import math
+import os
+import pathlib
 import signal
 import time
 
-from driver_harness import DriverProcess, next_domain_id, RosClient
+from driver_harness import DriverProcess, next_domain_id, RosClient, wait_for
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.protocol import DEFAULT_TORQUE_SCALE
@@ -22,13 +24,15 @@ WRENCH = (3.0, -2.0, 4.0, 0.05, -0.1, 0.08)
 class Session:
     """A simulated device in this process, the driver process on its pty, a client node."""
 
-    def __init__(self, prefix, parameters=(), namespace=None, arm='right', domain_id=None):
+    def __init__(self, prefix, parameters=(), namespace=None, arm='right', domain_id=None,
+                 wrapper=()):
         """Start all three; the client listens in the driver's namespace."""
         self.domain_id = domain_id or next_domain_id()
         self.simulator = SimulatedKraftMaster(arm=arm, operator='hold')
         port = self.simulator.start()
         parameters = [('port', port), ('arm', arm), *parameters]
-        self.driver = DriverProcess(prefix, self.domain_id, parameters, namespace=namespace)
+        self.driver = DriverProcess(prefix, self.domain_id, parameters, namespace=namespace,
+                                    wrapper=wrapper)
         self.client = RosClient(self.domain_id, namespace=namespace or '/')
         try:
             self.client.wait_connected()
@@ -205,7 +209,45 @@ def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
         client.stream_wrench_until(WRENCH, BASE, lambda: any(running.last_command()))
         code, output = running.driver.interrupt(sig)
         assert code == 0, output
-        assert not any(running.last_command()), 'the last command must be zero torque'
+        # The driver has exited; the simulator may still be reading its last bytes.
+        assert wait_for(lambda: not any(running.last_command()), timeout=5.0), \
+            'the last command must be zero torque'
+    finally:
+        running.close()
+
+
+def scheduling_of_threads(pid):
+    """Return (policy, rt_priority) of each thread of process pid (Linux /proc)."""
+    result = []
+    for stat in pathlib.Path(f'/proc/{pid}/task').glob('*/stat'):
+        fields = stat.read_text().rsplit(')', 1)[1].split()
+        result.append((int(fields[38]), int(fields[37])))  # stat fields 41 and 40
+    return result
+
+
+def test_loop_thread_runs_at_the_real_time_priority_asked(install_prefix):
+    running = Session(install_prefix, [('loop_priority', '30')])
+    try:
+        assert running.client.joint_states
+        threads = scheduling_of_threads(running.driver.process.pid)
+        assert threads.count((os.SCHED_FIFO, 30)) == 1, threads
+        assert sum(policy != os.SCHED_OTHER for policy, _ in threads) == 1, threads
+    finally:
+        running.close()
+
+
+def test_refused_real_time_priority_warns_and_runs_at_normal_priority(install_prefix):
+    without_sys_nice = ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice']
+    running = Session(install_prefix, [('loop_priority', '30')], wrapper=without_sys_nice)
+    try:
+        count = len(running.client.joint_states)
+        running.client.spin(0.5)
+        assert len(running.client.joint_states) > count + 100
+        threads = scheduling_of_threads(running.driver.process.pid)
+        assert all(policy == os.SCHED_OTHER for policy, _ in threads), threads
+        code, output = running.driver.interrupt()
+        assert code == 0, output
+        assert 'loop_priority 30: real-time scheduling refused' in output
     finally:
         running.close()
 
