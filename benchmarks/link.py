@@ -37,9 +37,10 @@ START_TIMEOUT_S = 30.0
 class SimulatorProcess:
     """The simulator CLI in a child process; the context value is its port path."""
 
-    def __init__(self, baud=None):
-        """Run with wire timing at baud (None: none)."""
-        self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulator']
+    def __init__(self, baud=None, priority=0):
+        """Run with wire timing at baud (None: none), serving at SCHED_FIFO priority."""
+        self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulator',
+                           '--priority', str(priority)]
         if baud is not None:
             self._arguments += ['--baud', str(baud)]
         self._process = None
@@ -118,12 +119,19 @@ def main():
     parser.add_argument('--cycles', type=int, default=20000, help='flat-out cycles (20000)')
     parser.add_argument('--wire-cycles', type=int, default=1500,
                         help='cycles of the 115200 baud run (1500)')
+    parser.add_argument('--host-priority', type=int, default=50,
+                        help='SCHED_FIFO priority of the cycling thread, as the driver '
+                             "node's loop_priority (default 50; 0: normal)")
+    parser.add_argument('--sim-priority', type=int, default=0,
+                        help="the simulator's --priority (default 0: normal)")
     parser.add_argument('--json', metavar='PATH', help='also write the figures to PATH')
     args = parser.parse_args()
+    if args.host_priority:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.host_priority))
 
-    with SimulatorProcess() as port:
+    with SimulatorProcess(priority=args.sim_priority) as port:
         flat = run_cycles(port, args.cycles, args.cycles // 10, FLAT_OUT_BAUD)
-    with SimulatorProcess(WIRE_BAUD) as port:
+    with SimulatorProcess(WIRE_BAUD, args.sim_priority) as port:
         wire = run_cycles(port, args.wire_cycles, 100, WIRE_BAUD)
     wire['fraction_of_wire_limited'] = wire['rate_hz'] / wire['wire_limited_rate_hz']
 

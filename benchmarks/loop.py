@@ -145,8 +145,9 @@ def process_cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def start_simulator(env, record, baud):
-    command = [sys.executable, '-m', 'kraft_master_driver.simulator', '--record', record]
+def start_simulator(env, record, baud, priority):
+    command = [sys.executable, '-m', 'kraft_master_driver.simulator', '--record', record,
+               '--priority', str(priority)]
     if baud:
         command += ['--baud', str(baud)]
     sim = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, text=True)
@@ -186,12 +187,12 @@ def wrench_latencies(flips, commands):
     return latencies
 
 
-def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=()):
+def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_priority=0):
     """Run the four processes for `duration` s; return the figures of this run."""
     env = ros_env(domain_id)
     tag = f'{rate_hz:g}Hz_{baud or "pty"}'
     record = str(workdir / f'device_{tag}.npy')
-    sim, port = start_simulator(env, record, baud)
+    sim, port = start_simulator(env, record, baud, sim_priority)
     node_args = ['--ros-args', '-p', f'port:={port}', '-p', f'loop_rate_hz:={rate_hz}',
                  '-p', 'force_enabled_at_start:=true', '-p', 'reply_timeout:=0.02']
     if baud:
@@ -303,13 +304,16 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--duration', type=float, default=20.0,
                         help='measured seconds per run (default 20)')
-    parser.add_argument('--rates', type=float, nargs='+', default=[500.0, 1000.0, 2000.0])
+    parser.add_argument('--rates', type=float, nargs='*', default=[500.0, 1000.0, 2000.0],
+                        help='loop_rate_hz of the runs without wire timing')
     parser.add_argument('--bauds', type=int, nargs='*', default=[115200, 1_000_000],
                         help='wire-timed runs at 1000 Hz (default 115200 1000000)')
     parser.add_argument('--repeat', type=int, default=1,
                         help='runs per configuration; with more than one, a median row too')
     parser.add_argument('--set', metavar='NAME:=VALUE', nargs='*', default=[],
                         help='extra driver parameters, e.g. loop_priority:=0')
+    parser.add_argument('--sim-priority', type=int, default=0,
+                        help="the simulator's --priority (default 0: normal)")
     parser.add_argument('--json', help='write the figures here (default benchmarks/results/)')
     parser.add_argument('--role', choices=('subscriber', 'publisher'), help=argparse.SUPPRESS)
     parser.add_argument('--out', help=argparse.SUPPRESS)
@@ -329,7 +333,7 @@ def main():
                 print(f'running {rate:g} Hz, {baud or "pty without wire timing"}, '
                       f'{args.duration:g} s ({attempt}/{args.repeat}) ...', flush=True)
                 repeats.append(run(rate, args.duration, baud, domain_id,
-                                   pathlib.Path(workdir), args.set))
+                                   pathlib.Path(workdir), args.set, args.sim_priority))
             results.extend(repeats)
             if args.repeat > 1:
                 results.append(median_run(repeats))
@@ -340,6 +344,7 @@ def main():
     machine = {'platform': platform.platform(), 'python': platform.python_version(),
                'cpus': os.cpu_count()}
     out.write_text(json.dumps({'machine': machine, 'driver_parameters': args.set,
+                               'sim_priority': args.sim_priority,
                                'runs': results}, indent=2, default=float))
     print(f'figures written to {out}')
     return 0

@@ -317,7 +317,7 @@ class SimulatedKraftMaster:
                  pot_noise_counts=0.0, baudrate=None, seed=0, *,
                  torque_limit=DEFAULT_TORQUE_LIMIT, command_timeout=0.1,
                  operator_period=2.0, drop_reply_rate=0.0, corrupt_byte_rate=0.0,
-                 dynamics=DEFAULT_DYNAMICS, record=10000):
+                 dynamics=DEFAULT_DYNAMICS, record=10000, priority=0):
         """
         Configure the device; nothing runs until start().
 
@@ -325,8 +325,15 @@ class SimulatedKraftMaster:
         torque_scale is in command counts per N*m, torque_limit in counts (larger commands
         are clamped, status bit1); baudrate None means no wire timing; command_timeout (s)
         is the watchdog; operator_period (s) is the sweep time per joint or the mean
-        segment of the random walk; `record` is the length of the `received` deque.
+        segment of the random walk; `record` is the length of the `received` deque;
+        priority (1-99) runs the serving thread SCHED_FIFO, answering as promptly as the
+        device's own electronics would (0: the normal scheduler; if the OS refuses,
+        priority_error says why and the thread runs normally).
         """
+        if not (isinstance(priority, int) and 0 <= priority <= 99):
+            raise ValueError(f'priority must be an integer in 0..99, got {priority!r}')
+        self.priority = priority
+        self.priority_error = None
         self.arm = kinematics.check_arm(arm)
         self.calibration = ArmCalibration.nominal(arm) if calibration is None else calibration
         if self.calibration.arm != arm:
@@ -467,6 +474,12 @@ class SimulatedKraftMaster:
         self._thread = threading.Thread(target=self._serve, name='kraft_master_sim',
                                         daemon=True)
         self._thread.start()
+        if self.priority:
+            try:  # Linux: a thread id in place of a process id sets that thread alone
+                os.sched_setscheduler(self._thread.native_id, os.SCHED_FIFO,
+                                      os.sched_param(self.priority))
+            except OSError as error:
+                self.priority_error = f'SCHED_FIFO {self.priority} refused: {error}'
         return self._link
 
     def stop(self):
@@ -501,9 +514,16 @@ class SimulatedKraftMaster:
         while self._running:
             timeout = IDLE_TICK
             if self._pending:
-                # Wake early and poll: select() oversleeps by about 0.1 ms here.
-                due_in = self._pending[0][0] - time.monotonic()
-                timeout = min(timeout, max(0.0, due_in - WIRE_WAKE_EARLY))
+                due = self._pending[0][0]
+                due_in = due - time.monotonic()
+                if due_in <= WIRE_WAKE_EARLY:
+                    # select() oversleeps by about 0.1 ms here: watch the clock alone until
+                    # the reply is due, so that it leaves on time.
+                    while time.monotonic() < due:
+                        pass
+                    self._send_due(time.monotonic())
+                    continue
+                timeout = min(timeout, due_in - WIRE_WAKE_EARLY)
             master = self._master
             readable = select.select((wake, master) if master is not None else (wake,),
                                      (), (), timeout)[0]
@@ -712,6 +732,9 @@ def main(argv=None):
                         help="the device's true calibration, a parameter file such as "
                              'config/right_arm.yaml (default: nominal)')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
+    parser.add_argument('--priority', type=int, default=0,
+                        help='SCHED_FIFO priority 1-99 of the thread that answers commands, '
+                             'as prompt as the real electronics (default 0: normal)')
     parser.add_argument('--record', metavar='NPY',
                         help='on exit, save every received command as rows (time_ns, '
                              'counts axis 1..5, sequence) in this .npy file')
@@ -729,7 +752,7 @@ def main(argv=None):
             arm=arm, calibration=calibration, coupling=args.coupling, operator=args.operator,
             pot_noise_counts=args.noise, baudrate=args.baud, seed=args.seed,
             drop_reply_rate=args.drop_rate, corrupt_byte_rate=args.corrupt_rate,
-            record=RECORD_ALL if args.record else 10000)
+            record=RECORD_ALL if args.record else 10000, priority=args.priority)
     except ValueError as error:
         parser.error(str(error))
 
@@ -739,6 +762,8 @@ def main(argv=None):
     try:
         with simulator:
             print(f'port: {simulator.port}', flush=True)
+            if simulator.priority_error:
+                print(f'kraft_master_sim: warning: {simulator.priority_error}', file=sys.stderr)
             gc.freeze()  # no full garbage collection passes over the set-up (node.run_node)
             while not stop.wait(0.5):
                 continue

@@ -418,6 +418,8 @@ def test_stop_cleans_up():
     ({'pot_noise_counts': -1.0}, 'pot_noise_counts'),
     ({'baudrate': 0}, 'baud'),
     ({'command_timeout': 0.0}, 'command_timeout'),
+    ({'priority': 100}, 'priority'),
+    ({'priority': 1.5}, 'priority'),
 ])
 def test_bad_options_are_refused_by_name(options, message):
     with pytest.raises(ValueError, match=message):
@@ -480,6 +482,42 @@ def test_a_killed_simulator_leaves_a_dangling_link():
         process.stdout.close()
         process.stderr.close()
     shutil.rmtree(os.path.dirname(path))
+
+
+def test_priority_runs_the_serving_thread_sched_fifo():
+    with SimulatedKraftMaster(priority=20) as simulator:
+        assert simulator.priority_error is None
+        thread_id = simulator._thread.native_id
+        assert os.sched_getscheduler(thread_id) == os.SCHED_FIFO
+        assert os.sched_getparam(thread_id).sched_priority == 20
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the caller's thread is untouched
+        host = Host(simulator.port)
+        try:
+            assert host.exchange() is not None
+        finally:
+            host.close()
+
+
+def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
+    process = subprocess.Popen(
+        ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice',
+         sys.executable, '-m', 'kraft_master_driver.simulator', '--priority', '20'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1'))
+    try:
+        host = Host(read_port_line(process))
+        try:
+            assert host.exchange() is not None
+        finally:
+            host.close()
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 0
+        assert 'warning: SCHED_FIFO 20 refused' in process.stderr.read()
+    finally:
+        process.kill()
+        process.wait()
+        process.stdout.close()
+        process.stderr.close()
 
 
 def test_cli_refuses_an_unreadable_calibration():
