@@ -72,6 +72,7 @@ class ArmCalibration:
                     f'points equal ({shown(first[pot]):g}); the line through them is undefined')
         self.slope = (self.angle_b - self.angle_a) / (self.pot_b - self.pot_a)
         self.offset = self.angle_a - self.slope * self.pot_a
+        self._lines = tuple(zip(self.offset.tolist(), self.slope.tolist()))
 
     @classmethod
     def nominal(cls, arm):
@@ -88,6 +89,17 @@ class ArmCalibration:
         measured = self.offset + self.slope * np.asarray(pots, dtype=float)
         theta = measured[..., POT_JOINT]
         theta[..., 2] -= theta[..., 1]
+        return theta
+
+    def frame_to_joints(self, pots):
+        """
+        Return th1..th6 (rad) of one frame of six pot counts as a list of floats.
+
+        pots_to_joints without numpy for the control loop; the same floats.
+        """
+        measured = [offset + slope * count for (offset, slope), count in zip(self._lines, pots)]
+        theta = [measured[pot] for pot in POT_JOINT]
+        theta[2] -= theta[1]
         return theta
 
     def joints_to_pots(self, theta):

@@ -106,6 +106,7 @@ class KmcDevice:
         self._decoder = self.codec.reply_decoder()
         self._serial = None
         self._io = None
+        self._in_flight = None  # (sequence, write time ns, counts) of the command sent last
         self._lock = threading.Lock()
         self._opened = False
         self._ever_up = False
@@ -177,48 +178,77 @@ class KmcDevice:
 
     def cycle(self, torques_nm):
         """
-        Write the torques (N*m, axes 1..5) and read the matching pot frame.
+        Write the torques (N*m, axes 1..5) and read the matching pot frame: send + receive.
 
         Returns a CycleResult, or None on a timeout or while the link is down (a reopen is
         attempted here when the backoff allows). Raises ValueError for bad torques and
         LinkError when the device is not open; never raises for link faults.
         """
+        return self.receive() if self.send(torques_nm) else None
+
+    def send(self, torques_nm):
+        """
+        Write one torque command (N*m, axes 1..5); return True if it went out.
+
+        False while the link is down (a reopen is attempted when the backoff allows) or when
+        the write failed (a link fault). A command still waiting for its reply is forgotten:
+        its reply, if it comes, is counted stale. Raises as cycle().
+        """
         counts, clamped, nonfinite = self.command_counts(torques_nm)
         with self._lock:
             if not self._opened:
                 raise LinkError(f'{self.port}: device is closed; call open() first')
-            return self._cycle(counts, clamped, nonfinite)
-
-    def _cycle(self, counts, clamped, nonfinite):
-        """Carry out one cycle with the lock held (see cycle())."""
-        if not self.link_up and not self._reconnect_due():
-            return None
-        counters = self._counters
-        counters['clamped_commands'] += clamped
-        counters['nonfinite_commands'] += nonfinite
-        sequence = self._next_sequence()
-        command = self.codec.encode_command(sequence, counts)
-        try:
-            start_ns = time.perf_counter_ns()
-            self._io.write(command)
+            self._in_flight = None
+            if not self.link_up and not self._reconnect_due():
+                return False
+            counters = self._counters
+            counters['clamped_commands'] += clamped
+            counters['nonfinite_commands'] += nonfinite
+            sequence = self._next_sequence()
+            command = self.codec.encode_command(sequence, counts)
+            try:
+                start_ns = time.perf_counter_ns()
+                self._io.write(command)
+            except (OSError, serial.SerialException) as exc:
+                self._link_fault(f'{self.port}: {exc}')
+                return False
             counters['cycles'] += 1
-            frame = self._read_reply(sequence, start_ns + int(self.reply_timeout * 1e9))
-        except (OSError, serial.SerialException) as exc:
-            self._link_fault(f'{self.port}: {exc}')
-            return None
-        if frame is None:
-            counters['timeouts'] += 1
-            self._consecutive_timeouts += 1
-            if self._consecutive_timeouts >= self.timeouts_before_reconnect:
-                self._link_fault(f'{self.port}: no reply to {self._consecutive_timeouts} '
-                                 'consecutive commands')
-            return None
-        receive_ns = time.time_ns()
-        round_trip_s = (time.perf_counter_ns() - start_ns) * 1e-9
-        self._consecutive_timeouts = 0
-        counters['replies'] += 1
-        commanded_nm = tuple(count / scale for count, scale in zip(counts, self.torque_scale))
-        return CycleResult(frame, receive_ns, round_trip_s, commanded_nm)
+            self._in_flight = (sequence, start_ns, counts)
+            return True
+
+    def receive(self):
+        """
+        Wait for the reply to the command sent last; return its CycleResult.
+
+        None on a timeout (reply_timeout after the write), a link fault, or when no command
+        is waiting for its reply. Raises LinkError when the device is not open.
+        """
+        with self._lock:
+            if not self._opened:
+                raise LinkError(f'{self.port}: device is closed; call open() first')
+            in_flight, self._in_flight = self._in_flight, None
+            if in_flight is None or not self.link_up:
+                return None
+            sequence, start_ns, counts = in_flight
+            counters = self._counters
+            try:
+                frame = self._read_reply(sequence, start_ns + int(self.reply_timeout * 1e9))
+            except (OSError, serial.SerialException) as exc:
+                self._link_fault(f'{self.port}: {exc}')
+                return None
+            if frame is None:
+                counters['timeouts'] += 1
+                self._consecutive_timeouts += 1
+                if self._consecutive_timeouts >= self.timeouts_before_reconnect:
+                    self._link_fault(f'{self.port}: no reply to {self._consecutive_timeouts} '
+                                     'consecutive commands')
+                return None
+            receive_ns = time.time_ns()
+            round_trip_s = (time.perf_counter_ns() - start_ns) * 1e-9
+            self._consecutive_timeouts = 0
+            counters['replies'] += 1
+            commanded_nm = tuple(count / scale for count, scale in zip(counts, self.torque_scale))
+            return CycleResult(frame, receive_ns, round_trip_s, commanded_nm)
 
     def _read_reply(self, sequence, deadline_ns):
         """Read until the reply with this sequence arrives (return it) or the deadline (None)."""
@@ -305,6 +335,7 @@ class KmcDevice:
     def _close_port(self):
         """Write zero torques (best effort) and close the port if it is open."""
         port, self._serial, self._io = self._serial, None, None
+        self._in_flight = None
         self.link_up = False
         if port is None:
             return

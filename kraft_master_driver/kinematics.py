@@ -105,7 +105,7 @@ def _factored_terms(trig, arm, lengths):
 
 
 def _scalar_trig(theta):
-    th1, th2, th3, th4, th5, th6 = theta.tolist()
+    th1, th2, th3, th4, th5, th6 = theta
     th23 = th2 + th3
     return (math.cos(th1), math.sin(th1), math.cos(th2), math.sin(th2),
             math.cos(th23), math.sin(th23), math.cos(th4), math.sin(th4),
@@ -153,8 +153,18 @@ def forward_and_jacobian(theta, arm='right', lengths=None):
     theta = _as_six_vectors(theta)
     if theta.ndim == 2:
         return _batch(theta, arm, lengths, True, True)
-    pose_entries, jacobian_entries = _factored_terms(_scalar_trig(theta), arm, lengths)
+    pose_entries, jacobian_entries = _factored_terms(_scalar_trig(theta.tolist()), arm, lengths)
     return np.array(pose_entries).reshape(4, 4), np.array(jacobian_entries).reshape(6, 6)
+
+
+def forward_and_jacobian_entries(theta, arm='right', lengths=None):
+    """
+    Return (0T6, 0J) of one joint vector as 16 and 36 floats, row by row.
+
+    forward_and_jacobian without numpy for the control loop: theta is six floats, and the
+    entries are the very floats the arrays of forward_and_jacobian hold.
+    """
+    return _factored_terms(_scalar_trig(theta), arm, lengths)
 
 
 def forward(theta, arm='right', lengths=None):
@@ -162,7 +172,7 @@ def forward(theta, arm='right', lengths=None):
     theta = _as_six_vectors(theta)
     if theta.ndim == 2:
         return _batch(theta, arm, lengths, True, False)[0]
-    return np.array(_factored_terms(_scalar_trig(theta), arm, lengths)[0]).reshape(4, 4)
+    return np.array(_factored_terms(_scalar_trig(theta.tolist()), arm, lengths)[0]).reshape(4, 4)
 
 
 def jacobian(theta, arm='right', lengths=None):
@@ -170,7 +180,7 @@ def jacobian(theta, arm='right', lengths=None):
     theta = _as_six_vectors(theta)
     if theta.ndim == 2:
         return _batch(theta, arm, lengths, False, True)[1]
-    return np.array(_factored_terms(_scalar_trig(theta), arm, lengths)[1]).reshape(6, 6)
+    return np.array(_factored_terms(_scalar_trig(theta.tolist()), arm, lengths)[1]).reshape(6, 6)
 
 
 def dh_transform(alpha, a, d, theta):

@@ -58,12 +58,11 @@ class LoopStatistics:
             self.periods.add(start_ns - self._last_start_ns)
         self._last_start_ns = start_ns
 
-    def add_cpu(self, link, kinematics, publish):
-        """Add one cycle's thread CPU time (ns) spent per phase."""
+    def add_cpu(self, **phases):
+        """Add thread CPU time (ns) spent in phases link, kinematics and publish."""
         cpu = self.cpu_ns
-        cpu['link'] += link
-        cpu['kinematics'] += kinematics
-        cpu['publish'] += publish
+        for phase, ns in phases.items():
+            cpu[phase] += ns
 
     def cpu_per_cycle(self):
         """Mean thread CPU time per cycle (s) of each phase since start."""
@@ -77,26 +76,28 @@ class LoopStatistics:
 
 
 class VelocityFilter:
-    """Joint velocity: finite differences through a first-order low-pass filter."""
+    """Joint velocity: finite differences through a first-order low-pass filter, in floats."""
 
     def __init__(self, cutoff_hz, size=6):
         """Filter with the given cut-off frequency."""
         self.cutoff_hz = cutoff_hz
-        self.value = np.zeros(size)
+        self.size = size
+        self.value = [0.0] * size
         self._last = None
         self._last_ns = 0
 
     def update(self, position, time_ns):
-        """Take a sample (rad, time in ns); return the filtered velocity (rad/s)."""
+        """Take a sample (rad, `size` floats; time in ns); return the velocity (list, rad/s)."""
         if self._last is not None and time_ns > self._last_ns:
             dt = (time_ns - self._last_ns) / 1e9
             alpha = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * dt)
-            self.value += alpha * ((position - self._last) / dt - self.value)
-        self._last = position
+            self.value = [v + alpha * ((now - before) / dt - v)
+                          for v, now, before in zip(self.value, position, self._last)]
+        self._last = tuple(position)
         self._last_ns = time_ns
         return self.value
 
     def reset(self):
         """Forget the history (after a link fault): the next sample starts from rest."""
-        self.value[:] = 0.0
+        self.value = [0.0] * self.size
         self._last = None

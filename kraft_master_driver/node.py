@@ -9,6 +9,7 @@ and diagnostics. Only this module imports rclpy.
 """
 import gc
 import math
+import operator
 import os
 import sys
 import threading
@@ -25,6 +26,7 @@ from kraft_master_driver.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.teleop import (
     BASE_FRAME, ForceReflection, rate_command, STALE, WRIST_FRAME)
+import numpy as np
 from rcl_interfaces.msg import (
     FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
 import rclpy
@@ -179,6 +181,21 @@ def _milliseconds(name, median_p99_max):
             for label, seconds in zip(('median', 'p99', 'max'), median_p99_max)}
 
 
+class Estimate(NamedTuple):
+    """
+    What one pot frame tells, in plain floats.
+
+    theta and velocity (6 each), pose (0T6 row by row, 16), its rotation (3 rows of 3) and
+    the Jacobian (6 rows of 6).
+    """
+
+    theta: list
+    velocity: list
+    pose: tuple
+    rotation: tuple
+    jacobian: list
+
+
 class KraftMasterNode(Node):
     """Publishes the hand controller's state and reflects task wrenches as joint torques."""
 
@@ -249,7 +266,9 @@ class KraftMasterNode(Node):
         self.cartesian_velocity = None
         self.centre = None
         self._running = True
-        self._thread = threading.Thread(target=self._run, name='kraft_master_loop', daemon=True)
+        # Not a daemon: the interpreter waits for the loop to zero the torques on its way out,
+        # even when a signal ends the process before this constructor returns.
+        self._thread = threading.Thread(target=self._run, name='kraft_master_loop')
         self._thread.start()
         self.get_logger().info(
             f'{self.arm} Kraft Master on {self.config["port"]} at '
@@ -323,68 +342,92 @@ class KraftMasterNode(Node):
         self.loop_scheduler = f'SCHED_FIFO {priority}'
 
     def _run(self):
+        """Run the loop at its priority; however it ends, zero the torques and close."""
         self._raise_priority()
+        try:
+            self._cycle_until_stopped()
+        finally:
+            self.device.close()
+
+    def _cycle_until_stopped(self):
+        """
+        Pace the device cycles: command out at each deadline, reply in, state published.
+
+        A late cycle sends its next command as soon as the reply is estimated and publishes
+        while that command is on the wire, so a wire-limited link is never idle for the
+        publishing. Ends when stop() is called or the ROS context shuts down (a signal).
+        """
         period_ns = int(1e9 / self.config['loop_rate_hz'])
-        deadline = time.monotonic_ns()
-        rotation = jacobian = None
         cpu = time.thread_time_ns
-        while self._running:
-            started = time.monotonic_ns()
-            self.loop.record_start(started)
+        deadline = time.monotonic_ns()
+        self.loop.record_start(deadline)
+        sent = self._send_torques(None)
+        while self._running and self.context.ok():
             try:
                 c0 = cpu()
-                self._take_wrenches()
-                torques, output = ZERO_TORQUES, None
-                if jacobian is not None:
-                    output = self.force.compute(
-                        rotation, jacobian, started, pose=self.pose, centre=self.centre,
-                        cartesian_velocity=self.cartesian_velocity)
-                    torques = output.actuator
-                    if output.state == STALE and self._last_force_state != STALE:
-                        self.get_logger().warning(
-                            f'no wrench for {self.config["wrench_timeout"]:g} s '
-                            '(wrench_timeout): torques zeroed', throttle_duration_sec=1.0)
-                    self._last_force_state = output.state
-                self.output = output
+                result = self.device.receive() if sent else None
                 c1 = cpu()
-                result = self.device.cycle(torques)
-                c2 = cpu()
-                rotation = jacobian = None
+                estimate = None
                 if result is None:
                     self.velocity.reset()
                     self._warn_no_reply()
-                    c4 = c3 = c2
                 else:
                     if self._replies_missing:
                         self._replies_missing = 0
                         self.get_logger().info('the device answers again')
                     self.loop.round_trips.add(int(result.round_trip_s * 1e9))
-                    theta, velocity, pose, jacobian = self._estimate(result)
-                    rotation = pose[:3, :3]
-                    c3 = cpu()
-                    if self.loop.frames % self.config['publish_decimation'] == 0:
-                        self._publish_state(result, theta, velocity, pose)
-                        self.loop.published += 1
-                    c4 = cpu()
-                self.loop.add_cpu(link=c2 - c1, kinematics=c1 - c0 + c3 - c2, publish=c4 - c3)
+                    estimate = self._estimate(result)
+                self.loop.add_cpu(link=c1 - c0, kinematics=cpu() - c1)
+                deadline += period_ns
+                now = time.monotonic_ns()
+                late = now >= deadline
+                if late:
+                    # Run at once to catch up; skip whole periods that cannot be caught up.
+                    self.loop.late += 1
+                    skipped = (now - deadline) // period_ns
+                    self.loop.missed += skipped
+                    deadline += skipped * period_ns
+                    self.loop.record_start(now)
+                    sent = self._send_torques(estimate)
+                if estimate is not None and self.loop.frames % self.config[
+                        'publish_decimation'] == 0:
+                    c2 = cpu()
+                    self._publish_state(result, estimate)
+                    self.loop.published += 1
+                    self.loop.add_cpu(publish=cpu() - c2)
+                if not late:
+                    time.sleep(max(0, deadline - time.monotonic_ns()) / 1e9)
+                    self.loop.record_start(time.monotonic_ns())
+                    sent = self._send_torques(estimate)
             except Exception as error:  # noqa: B902 - any fault must end in zero torque
-                if not self._running or not rclpy.ok(context=self.context):
+                if not self._running or not self.context.ok():
                     break
-                rotation = jacobian = None
                 self.loop.internal_errors += 1
-                self.device.cycle(ZERO_TORQUES)
                 self.get_logger().error(f'cycle failed, torques zeroed: {error!r}',
                                         throttle_duration_sec=1.0)
-            deadline += period_ns
-            now = time.monotonic_ns()
-            if now < deadline:
-                time.sleep((deadline - now) / 1e9)
-            else:
-                # Late: run at once to catch up; skip whole periods that cannot be caught up.
-                self.loop.late += 1
-                skipped = (now - deadline) // period_ns
-                self.loop.missed += skipped
-                deadline += skipped * period_ns
+                time.sleep(period_ns / 1e9)
+                deadline = time.monotonic_ns()
+                sent = self.device.send(ZERO_TORQUES)
+
+    def _send_torques(self, estimate):
+        """Take the wrenches that came, work out the torques and send them; True if sent."""
+        c0 = time.thread_time_ns()
+        self._take_wrenches()
+        output = None
+        if estimate is not None:
+            output = self.force.compute(
+                estimate.rotation, estimate.jacobian, time.monotonic_ns(), pose=self.pose,
+                centre=self.centre, cartesian_velocity=self.cartesian_velocity)
+            if output.state == STALE and self._last_force_state != STALE:
+                self.get_logger().warning(
+                    f'no wrench for {self.config["wrench_timeout"]:g} s (wrench_timeout): '
+                    'torques zeroed', throttle_duration_sec=1.0)
+            self._last_force_state = output.state
+        self.output = output
+        c1 = time.thread_time_ns()
+        sent = self.device.send(ZERO_TORQUES if output is None else output.actuator)
+        self.loop.add_cpu(kinematics=c1 - c0, link=time.thread_time_ns() - c1)
+        return sent
 
     def _take_wrenches(self):
         """Hand every wrench that has arrived to _on_wrench, oldest first."""
@@ -431,14 +474,15 @@ class KraftMasterNode(Node):
         self.get_logger().warning(f'{reason}: torques zeroed', throttle_duration_sec=1.0)
 
     def _estimate(self, result):
-        """Joint angles, velocity, wrist pose and Jacobian of one pot frame."""
-        theta = self.calibration.pots_to_joints(result.frame.pots)
-        pose, jacobian = kinematics.forward_and_jacobian(theta, self.arm, self.lengths)
+        """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
+        theta = self.calibration.frame_to_joints(result.frame.pots)
+        pose, jacobian = kinematics.forward_and_jacobian_entries(theta, self.arm, self.lengths)
         velocity = self.velocity.update(theta, result.receive_ns)
-        self.pose = pose
-        self.cartesian_velocity = jacobian @ velocity
+        jacobian = [jacobian[row:row + 6] for row in range(0, 36, 6)]
+        self.cartesian_velocity = [sum(map(operator.mul, row, velocity)) for row in jacobian]
+        self.pose = np.array(pose).reshape(4, 4)
         self.loop.frames += 1
-        return theta, velocity, pose, jacobian
+        return Estimate(theta, velocity, pose, (pose[0:3], pose[4:7], pose[8:11]), jacobian)
 
     def _effort(self, actuator_nm):
         """Joint torques th1..th6 (N*m) that the torques sent amount to; th6 has no motor."""
@@ -455,18 +499,18 @@ class KraftMasterNode(Node):
         self._pots_cdr = cdr.JointStateEncoder(base, POT_NAMES, (6, 0, 0))
         self._twist_cdr = cdr.StampedDoublesEncoder(base, 6)
 
-    def _publish_state(self, result, theta, velocity, pose):
+    def _publish_state(self, result, estimate):
         sec, nanosec = divmod(result.receive_ns, 1_000_000_000)
         self.joint_pub.publish(self._joint_cdr.encode(
-            sec, nanosec, theta.tolist(), velocity.tolist(), self._effort(result.commanded_nm)))
-        rows = pose.tolist()
+            sec, nanosec, estimate.theta, estimate.velocity, self._effort(result.commanded_nm)))
+        pose = estimate.pose
         self.pose_pub.publish(self._pose_cdr.encode(
-            sec, nanosec, (rows[0][3], rows[1][3], rows[2][3],
-                           *kinematics.rotation_to_quaternion(rows))))
+            sec, nanosec, (pose[3], pose[7], pose[11],
+                           *kinematics.rotation_to_quaternion(estimate.rotation))))
         self.pots_pub.publish(self._pots_cdr.encode(
             sec, nanosec, [float(count) for count in result.frame.pots], (), ()))
         if self.config['rate_command_enabled'] and self.centre is not None:
-            linear, angular = rate_command(pose, self.centre, *self.config['rate_gain'])
+            linear, angular = rate_command(self.pose, self.centre, *self.config['rate_gain'])
             self.rate_pub.publish(self._twist_cdr.encode(
                 sec, nanosec, linear.tolist() + angular.tolist()))
 

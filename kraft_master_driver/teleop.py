@@ -318,10 +318,11 @@ class ForceReflection:
         """
         Return the TorqueOutput for this cycle.
 
-        rotation: 0R6 (3x3), used for wrist-frame wrenches; jacobian: 0J (6x6);
-        now_ns: time.monotonic_ns(). pose and centre (4x4 0T6, metres) feed the return-to-centre
-        spring, cartesian_velocity (vx, vy, vz, wx, wy, wz of the wrist in {0}, i.e. 0J dtheta)
-        its damper; each acts only while its coefficients are non-zero and its inputs given.
+        rotation: 0R6 (3x3), used for wrist-frame wrenches; jacobian: 0J (6x6); each an
+        array or a list of rows (the loop's plain floats); now_ns: time.monotonic_ns().
+        pose and centre (4x4 0T6 arrays, metres) feed the return-to-centre spring,
+        cartesian_velocity (vx, vy, vz, wx, wy, wz of the wrist in {0}, i.e. 0J dtheta) its
+        damper; each acts only while its coefficients are non-zero and its inputs given.
         """
         hot = self._hot
         settings = hot.settings
@@ -342,7 +343,7 @@ class ForceReflection:
         scale = settings.force_scale
         fx, fy, fz, mx, my, mz = latest.wrench
         if latest.frame == WRIST_FRAME:
-            rows = np.asarray(rotation).tolist()
+            rows = _as_lists(rotation)
             wrench = _rotate(rows, fx, fy, fz) + _rotate(rows, mx, my, mz)
         else:
             wrench = [fx, fy, fz, mx, my, mz]
@@ -351,11 +352,10 @@ class ForceReflection:
             dp, dw = kinematics.pose_difference(pose, centre)
             wrench = _minus_product(wrench, hot.stiffness, dp.tolist() + dw.tolist())
         if hot.damping is not None and cartesian_velocity is not None:
-            wrench = _minus_product(
-                wrench, hot.damping, np.asarray(cartesian_velocity, dtype=float).tolist())
+            wrench = _minus_product(wrench, hot.damping, _as_lists(cartesian_velocity))
 
         # Plain floats: a few tolist() calls beat a chain of tiny numpy operations here.
-        columns = np.asarray(jacobian).T.tolist()
+        columns = list(zip(*_as_lists(jacobian)))
         torques = [sum(map(operator.mul, column, wrench)) for column in columns[:DRIVEN_AXES]]
         actuator_form = settings.coupling == 'actuator'
         if actuator_form:
@@ -377,6 +377,11 @@ class ForceReflection:
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
         joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)
         return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, latest.tag)
+
+
+def _as_lists(values):
+    """Return an array as (nested) lists of floats; lists pass through."""
+    return values.tolist() if isinstance(values, np.ndarray) else values
 
 
 def _rotate(rows, x, y, z):

@@ -93,6 +93,15 @@ def test_pots_to_joints_follows_equation_11(arm):
 
 
 @pytest.mark.parametrize('arm', ARMS)
+def test_frame_to_joints_gives_the_floats_of_pots_to_joints(arm):
+    cal = ArmCalibration.nominal(arm)
+    for frame in np.random.default_rng(3).integers(0, 4096, (500, 6)).tolist():
+        theta = cal.frame_to_joints(frame)
+        assert all(type(angle) is float for angle in theta)
+        assert theta == cal.pots_to_joints(frame).tolist()
+
+
+@pytest.mark.parametrize('arm', ARMS)
 def test_pots_and_joints_are_inverse(arm):
     cal = ArmCalibration.nominal(arm)
     rng = np.random.default_rng(2)

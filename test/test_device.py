@@ -140,6 +140,26 @@ def test_corrupt_bytes_are_counted_and_never_accepted(sim):
     device.close()
 
 
+def test_send_then_receive_is_one_cycle_and_an_unanswered_send_is_forgotten(sim):
+    device = make_device(sim.port)
+    assert device.receive() is None  # nothing sent yet
+    assert device.send((0.1, 0.0, 0.0, 0.0, 0.0))
+    first = device.receive()
+    assert first is not None and first.commanded_nm[0] == 0.1
+    assert device.receive() is None  # that reply was taken
+    assert device.send((0.2, 0.0, 0.0, 0.0, 0.0))
+    assert device.send((0.3, 0.0, 0.0, 0.0, 0.0))  # the reply to 0.2 is no longer wanted
+    third = device.receive()
+    assert third is not None and third.commanded_nm[0] == 0.3
+    assert third.frame.sequence == (first.frame.sequence + 2) % 256
+    assert device.stats['stale_replies'] == 1 and device.stats['timeouts'] == 0
+    device.close()
+    with pytest.raises(LinkError):
+        device.send(ZERO)
+    with pytest.raises(LinkError):
+        device.receive()
+
+
 def test_short_stall_times_out_then_recovers_without_reconnect(sim):
     device = make_device(sim.port, reply_timeout=0.02, timeouts_before_reconnect=1000)
     assert device.cycle((0.0,) * 5) is not None

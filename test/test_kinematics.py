@@ -236,6 +236,19 @@ def test_batch_equals_scalar(count):
         np.testing.assert_allclose(jacobians, scalar_jacobians, rtol=0, atol=1e-14)
 
 
+@pytest.mark.parametrize('arm', ARMS)
+def test_entries_are_the_floats_of_forward_and_jacobian(arm):
+    rng = np.random.default_rng(11)
+    lengths = kinematics.LinkLengths(*map(float, random_lengths(rng)))
+    for theta in random_joints(rng, 300).tolist():
+        pose_entries, jacobian_entries = kinematics.forward_and_jacobian_entries(
+            theta, arm, lengths)
+        pose, jacobian = kinematics.forward_and_jacobian(theta, arm, lengths)
+        assert all(type(x) is float for x in pose_entries + jacobian_entries)
+        assert list(pose_entries) == pose.ravel().tolist()
+        assert list(jacobian_entries) == jacobian.ravel().tolist()
+
+
 def test_accepts_lists_and_tuples():
     theta = [0.1, 0.5, -1.2, 0.3, 0.2, -0.4]
     np.testing.assert_array_equal(kinematics.forward(theta), kinematics.forward(np.array(theta)))
