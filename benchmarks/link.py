@@ -9,7 +9,8 @@ Two runs, the simulator started each time as `python -m kraft_master_driver.simu
 - with the simulator delaying each reply by its wire time at 115200 baud: the achieved rate as
   a fraction of the wire-limited rate (15 + 18 bytes at 10 bits per byte per cycle).
 Targets: >= 2000 cycles/s and p99 round trip < 1 ms flat out; >= 95 % of the wire-limited
-rate at 115200 baud. Prints a table (cpu us: the driver process's CPU time per cycle);
+rate at 115200 baud. Prints a table (cpu us: the driver process's CPU time per cycle; steal:
+the share of the machine's CPU time the hypervisor took during the run);
 --json PATH also writes the figures.
 """
 import argparse
@@ -25,6 +26,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from kraft_master_driver.device import KmcDevice  # noqa: E402, I100
+from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
 RATE_TARGET = 2000.0  # cycles/s flat out
 P99_TARGET_US = 1000.0
@@ -80,6 +82,7 @@ def run_cycles(port, cycles, warmup, baud):
             raise RuntimeError(f'cannot open {port}: {device.last_error}')
         for index in range(warmup):
             device.cycle(torque_pattern(index))
+        machine_start = cpu_times()
         start = time.perf_counter()
         cpu_start = time.process_time()
         for index in range(cycles):
@@ -89,6 +92,7 @@ def run_cycles(port, cycles, warmup, baud):
                 completed += 1
         elapsed = time.perf_counter() - start
         cpu = time.process_time() - cpu_start
+        steal = steal_fraction(machine_start, cpu_times())
         wire_limited = device.wire_limited_rate()
         stats = device.stats
     round_trips_us = round_trips[:completed] * 1e6
@@ -104,6 +108,7 @@ def run_cycles(port, cycles, warmup, baud):
         'round_trip_max_us': float(round_trips_us.max()),
         'wire_limited_rate_hz': wire_limited,
         'baud': baud,
+        'cpu_steal': steal,
     }
 
 
@@ -138,8 +143,8 @@ def main():
     print(f'KmcDevice <-> simulator (separate process) over a pty; Python '
           f'{platform.python_version()}, {os.cpu_count()} CPUs')
     header = ('run', 'cycles', 'timeouts', 'cycles/s', 'median us', 'p99 us', 'max us',
-              'cpu us', 'wire-limited/s', 'achieved/wire')
-    print('{:<22}{:>8}{:>10}{:>10}{:>11}{:>9}{:>9}{:>8}{:>16}{:>15}'.format(*header))
+              'cpu us', 'wire-limited/s', 'achieved/wire', 'steal')
+    print('{:<22}{:>8}{:>10}{:>10}{:>11}{:>9}{:>9}{:>8}{:>16}{:>15}{:>7}'.format(*header))
     for name, figures, fraction in (('pty flat out', flat, '-'),
                                     (f'pty wire {WIRE_BAUD} baud', wire,
                                      f'{wire["fraction_of_wire_limited"]:.1%}')):
@@ -147,7 +152,8 @@ def main():
         print(f'{name:<22}{figures["cycles"]:>8}{figures["timeouts"]:>10}'
               f'{figures["rate_hz"]:>10.0f}{figures["round_trip_median_us"]:>11.0f}'
               f'{figures["round_trip_p99_us"]:>9.0f}{figures["round_trip_max_us"]:>9.0f}'
-              f'{figures["driver_cpu_us_per_cycle"]:>8.0f}{limit:>16}{fraction:>15}')
+              f'{figures["driver_cpu_us_per_cycle"]:>8.0f}{limit:>16}{fraction:>15}'
+              f'{figures["cpu_steal"]:>7.0%}')
     checks = {
         'flat_out_rate': flat['rate_hz'] >= RATE_TARGET,
         'flat_out_p99': flat['round_trip_p99_us'] < P99_TARGET_US,
