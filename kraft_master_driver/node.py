@@ -230,7 +230,8 @@ class KraftMasterNode(Node):
         self._make_encoders()
         self._wrench_sub = self.create_subscription(
             WrenchStamped, 'wrench', self._on_wrench,
-            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
             callback_group=TakenByLoopThread(),
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         self.create_service(SetBool, 'enable_force', self._on_enable_force)
