@@ -32,7 +32,8 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(VPY) benchmarks/kinematics.py
 	$(VPY) benchmarks/link.py
-	$(VPY) benchmarks/loop.py
+	$(VPY) benchmarks/loop.py --repeat 3
+	$(VPY) benchmarks/messages.py
 	$(VPY) benchmarks/report.py
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless

@@ -9,13 +9,15 @@ The simulated device (kraft_master_sim on a pseudo-terminal), the driver
 --duration seconds at each loop rate; then the figures are printed as a table and written
 as JSON:
 
-- achieved cycle rate (commands the device received per second), late and missed cycles;
+- achieved cycle rate (commands the device received per second), joint_states per second at
+  the subscriber (js/s), late and missed cycles;
 - cycle period distribution (the joint_states stamps, taken when each pot frame arrived);
 - pot frame at the driver -> joint_states received by the subscriber;
 - wrench published -> the matching torque command received by the device: the publisher
   flips the sign of its moment about z every 20 ms, which flips the sign of the axis-1
   command (tau1 = mz), and each flip is matched with the first command of the new sign;
-- CPU time per cycle of the driver's loop thread by phase, and of the whole process;
+- CPU time per cycle of the driver's loop thread by phase, and of the whole process; the cores
+  each of the four processes used;
 - with wire timing at 115200 baud and 1 Mbaud: achieved rate over the wire-limited rate;
 - the share of the machine's CPU time the hypervisor stole during the run (a shared VM's
   neighbours), without which the other figures cannot be read.
@@ -214,8 +216,13 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         wait_ready([subscriber_out + '.ready', publisher_out + '.ready'], processes)
         machine_start = cpu_times()
         cpu_start, wall_start = process_cpu_seconds(driver.pid), time.time_ns()
+        roles = {'simulator': sim, 'driver': driver, 'subscriber': peers[0],
+                 'publisher': peers[1]}
+        role_cpu_start = {role: process_cpu_seconds(p.pid) for role, p in roles.items()}
         time.sleep(duration)
         cpu_end, wall_end = process_cpu_seconds(driver.pid), time.time_ns()
+        role_cpu = {role: process_cpu_seconds(p.pid) - role_cpu_start[role]
+                    for role, p in roles.items()}
         steal = steal_fraction(machine_start, cpu_times())
     finally:
         for process in processes:
@@ -248,6 +255,8 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'wrench_to_device_ms': percentiles(
             wrench_latencies(flips[flips[:, 0] < wall_end - 1e8], device), 1e3),
         'cpu_steal': steal,
+        'process_cores': {role: seconds * 1e9 / (wall_end - wall_start)
+                          for role, seconds in role_cpu.items()},
         'cpu_per_cycle_us': {
             'link': float(diagnostics.get('cpu per cycle link (us)', 'nan')),
             'kinematics': float(diagnostics.get('cpu per cycle kinematics (us)', 'nan')),
@@ -285,8 +294,8 @@ def fmt(value, digits=3):
 
 
 def print_table(results):
-    print(f'{"run":>21} {"cycles/s":>9} {"late":>5} {"missed":>6} | period ms: {"med":>6} '
-          f'{"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: {"med":>6} {"p99":>6} '
+    print(f'{"run":>21} {"cycles/s":>9} {"js/s":>7} {"late":>5} {"missed":>6} | period ms: '
+          f'{"med":>6} {"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: {"med":>6} {"p99":>6} '
           f'{"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | cpu us/cycle: '
           f'{"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire | steal')
     for r in results:
@@ -296,7 +305,8 @@ def print_table(results):
         if 'median_of' in r:
             name = f'median {name}'
         wire = r.get('achieved_over_wire_limited')
-        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {r["late_cycles"]:5.0f} '
+        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {r["joint_states_per_s"]:7.1f} '
+              f'{r["late_cycles"]:5.0f} '
               f'{r["missed_cycles"]:6.0f} |            {fmt(period["median"]):>6} '
               f'{fmt(period["p99"]):>6} {fmt(period["p99.9"]):>6} {fmt(period["max"]):>6} | '
               f'              {fmt(sub["median"]):>6} {fmt(sub["p99"]):>6} '
@@ -345,6 +355,10 @@ def main():
             if args.repeat > 1:
                 results.append(median_run(repeats))
     print_table(results)
+    print('cores used by each process (CPU s per s): ' + '; '.join(
+        f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}: ' + ', '.join(
+            f'{role} {cores:.2f}' for role, cores in r['process_cores'].items())
+        for r in results if 'median_of' not in r))
     out = pathlib.Path(args.json or REPO / 'benchmarks' / 'results' /
                        time.strftime('loop-%Y%m%d-%H%M%S.json'))
     out.parent.mkdir(parents=True, exist_ok=True)
