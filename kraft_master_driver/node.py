@@ -375,7 +375,8 @@ class KraftMasterNode(Node):
                 else:
                     if self._replies_missing:
                         self._replies_missing = 0
-                        self.get_logger().info('the device answers again')
+                        self.get_logger().info('the device answers again',
+                                               throttle_duration_sec=1.0)
                     self.loop.round_trips.add(int(result.round_trip_s * 1e9))
                     estimate = self._estimate(result)
                 self.loop.add_cpu(link=c1 - c0, kinematics=cpu() - c1)
