@@ -23,38 +23,39 @@ NANOSEC = st.integers(0, 2**32 - 1)
 JOINT_NAMES = ['kraft_joint1', 'j2', 'joint_three', 'j4', 'joint5', 'six']
 
 
-def joint_state(frame_id, sec, nanosec, names, position, velocity, effort):
-    msg = JointState(name=names, position=position, velocity=velocity, effort=effort)
+def stamped(msg, frame_id, sec, nanosec):
+    """Return msg with its header set."""
     msg.header.frame_id = frame_id
     msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
     return msg
 
 
+def joint_state(frame_id, sec, nanosec, names, position, velocity, effort):
+    return stamped(JointState(name=names, position=position, velocity=velocity, effort=effort),
+                   frame_id, sec, nanosec)
+
+
 def pose_stamped(frame_id, sec, nanosec, values):
-    msg = PoseStamped()
-    msg.header.frame_id = frame_id
-    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    msg = stamped(PoseStamped(), frame_id, sec, nanosec)
     p, q = msg.pose.position, msg.pose.orientation
     p.x, p.y, p.z, q.x, q.y, q.z, q.w = values
     return msg
 
 
-def twist_stamped(frame_id, sec, nanosec, values):
-    msg = TwistStamped()
-    msg.header.frame_id = frame_id
-    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
-    v, w = msg.twist.linear, msg.twist.angular
-    v.x, v.y, v.z, w.x, w.y, w.z = values
+def with_vectors(msg, first, second, values):
+    """Set two Vector3 fields of msg from six values; return msg."""
+    first.x, first.y, first.z, second.x, second.y, second.z = values
     return msg
+
+
+def twist_stamped(frame_id, sec, nanosec, values):
+    msg = stamped(TwistStamped(), frame_id, sec, nanosec)
+    return with_vectors(msg, msg.twist.linear, msg.twist.angular, values)
 
 
 def wrench_stamped(frame_id, sec, nanosec, values):
-    msg = WrenchStamped()
-    msg.header.frame_id = frame_id
-    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
-    f, m = msg.wrench.force, msg.wrench.torque
-    f.x, f.y, f.z, m.x, m.y, m.z = values
-    return msg
+    msg = stamped(WrenchStamped(), frame_id, sec, nanosec)
+    return with_vectors(msg, msg.wrench.force, msg.wrench.torque, values)
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
