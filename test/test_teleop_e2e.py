@@ -10,6 +10,7 @@ which the simulated operator pushes the master.
 """
 import collections
 import math
+import threading
 
 from driver_harness import DriverProcess, next_domain_id, RosClient
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -71,7 +72,12 @@ class Teleoperation:
             ('wall.point', vector_parameter(self.wall_point)),
             ('wall.normal', vector_parameter(NORMAL))])
         self.client = RosClient(domain_id, history=5000)
+        # Sampled from the start: the client may take seconds to discover the slave (a missed
+        # DDS announcement waits for the next one), and the operator does not wait for it.
         self.true_master_depths = []
+        self._sampling = threading.Event()
+        self._sampler = threading.Thread(target=self._sample_true_depths, daemon=True)
+        self._sampler.start()
         # Best effort: a reliable reader that misses the first samples while discovery
         # completes holds every later one back until the writer's next heartbeat (3 s in Fast
         # DDS), longer than some of these tests run.
@@ -92,14 +98,16 @@ class Teleoperation:
             self.close()
             raise AssertionError('driver or slave did not start:\n' + '\n'.join(outputs))
 
-    def wait(self, condition, timeout=20.0):
-        """Spin until `condition()` holds, sampling the device's true wrist depth meanwhile."""
-        def sample_and_check():
+    def _sample_true_depths(self):
+        """Record the device's true wrist depth every 2 ms until close()."""
+        while not self._sampling.wait(0.002):
             theta = self.simulator.joint_angles()
             self.true_master_depths.append(
                 depth(kinematics.forward(theta, ARM)[:3, 3], self.wall_point))
-            return condition()
-        return self.client.wait(sample_and_check, timeout)
+
+    def wait(self, condition, timeout=20.0):
+        """Spin until `condition()` holds."""
+        return self.client.wait(condition, timeout)
 
     def assert_alone(self):
         """Fail clearly if another test's nodes share this DDS domain (they would mix in)."""
@@ -129,6 +137,8 @@ class Teleoperation:
 
     def close(self):
         """Stop everything, whatever state the test left it in."""
+        self._sampling.set()
+        self._sampler.join()
         self.client.close()
         self.slave.kill()
         self.driver.kill()
@@ -165,8 +175,10 @@ def contact_states(client):
 
 def test_slave_stops_at_the_wall_and_the_master_is_pushed_back(sweeping):
     client = sweeping.client
-    # Contacts until the master has felt the wall for a while, then a release.
-    sweeping.wait(lambda: len(contact_states(client)) >= 20, timeout=40.0)
+    # Contacts until the master has felt the wall for a while and the client has seen the
+    # slave at the wall, then a release.
+    sweeping.wait(lambda: len(contact_states(client)) >= 20 and sweeping.slave_poses
+                  and sweeping.slave_depths().max() > 0.0, timeout=40.0)
     sweeping.wait(lambda: sweeping.master_depths()[-1] < 0.0
                   and not np.any(sweeping.forces()[-1]))
 
