@@ -368,6 +368,18 @@ class FaultSession:
             return next((d for d in received if d.stamp_ns >= time_ns), None)
         return self.wait(fresh)
 
+    def force_diagnostics_after(self, time_ns):
+        """
+        Wait for the first diagnostics at or after `time_ns` that reports a force state.
+
+        A snapshot taken just after a cycle whose reply was late reports 'no_state' (no pot
+        frame, no torques computed); the next one says what the force reflection is doing.
+        """
+        def fresh():
+            return next((d for d in self.diagnostics if d.stamp_ns >= time_ns
+                         and d.values['force state'] != 'no_state'), None)
+        return self.wait(fresh)
+
     def commands(self, since_ns=0, until_ns=math.inf):
         """Commands the device received in [since_ns, until_ns): (time_ns, TorqueCommand)."""
         received = list(self.simulator.received)  # a copy: the simulator thread appends
@@ -715,7 +727,7 @@ def inject_source_kill(session, env):
     finally:
         killed.close()
     session.wait_command(kill_ns, zero=True)
-    during = session.diagnostics_after(time.time_ns() + int(SETTLE_S * 1e9))
+    during = session.force_diagnostics_after(time.time_ns() + int(SETTLE_S * 1e9))
     clear_ns, _ = session.source.switch(SOURCE_RATE_HZ)
     back_ns = session.wait_command(clear_ns, zero=False)
     zero_ns = start_of_final_zero_run(session.commands(kill_ns, clear_ns))
