@@ -653,7 +653,7 @@ def run_node(make_node, program, args=None):
     try:
         node = make_node()
         # The set-up's objects live as long as the process: leave them out of garbage
-        # collection, whose full passes over them took 10 ms here, ten cycles of the loop.
+        # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
         gc.freeze()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
