@@ -305,7 +305,7 @@ class KmcDevice:
             self._next_attempt = time.monotonic() + self._backoff
             return False
         self._serial = port
-        self._io = _DescriptorIo(port) if _has_descriptor(port) else _PyserialIo(port)
+        self._io = _DescriptorIo(port) if isinstance(port, serial.Serial) else _PyserialIo(port)
         self._decoder.reset()
         self._consecutive_timeouts = 0
         self._backoff = self.reconnect_min
@@ -350,15 +350,6 @@ class KmcDevice:
             pass
 
 
-def _has_descriptor(port):
-    """Tell whether port is a device file (tty, pty) rather than a URL handler."""
-    try:
-        port.fileno()
-    except (AttributeError, OSError, serial.SerialException):
-        return False
-    return isinstance(port, serial.Serial)
-
-
 class _PyserialIo:
     """A URL port (socket://, loop://): pyserial's read and write."""
 
@@ -399,13 +390,13 @@ class _DescriptorIo:
                 if wait_ms <= 0 or not self._writable.poll(wait_ms):
                     raise serial.SerialTimeoutException('Write timeout') from None
 
-    def read(self, size, deadline_ns):
-        """Return the bytes waiting, or b'' if none came before deadline_ns (perf_counter_ns)."""
+    def read(self, _size, deadline_ns):
+        """Return all bytes waiting, or b'' if none came before deadline_ns (perf_counter_ns)."""
         wait_ms = max(0.0, (deadline_ns - time.perf_counter_ns()) / 1e6)
         if not self._readable.poll(wait_ms):
             return b''
         try:
-            data = os.read(self._fd, max(size, READ_CHUNK))
+            data = os.read(self._fd, READ_CHUNK)
         except (BlockingIOError, InterruptedError):
             return b''
         if not data:

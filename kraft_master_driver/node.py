@@ -263,7 +263,7 @@ class KraftMasterNode(Node):
         self._errors_reported = {}
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
         self.output = None
-        self.pose = None
+        self.pose_entries = None  # 0T6 of the newest frame, 16 floats row by row
         self.cartesian_velocity = None
         self.centre = None
         self._running = True
@@ -404,12 +404,12 @@ class KraftMasterNode(Node):
             except Exception as error:  # noqa: B902 - any fault must end in zero torque
                 if not self._running or not self.context.ok():
                     break
+                sent = self.device.send(ZERO_TORQUES)
                 self.loop.internal_errors += 1
                 self.get_logger().error(f'cycle failed, torques zeroed: {error!r}',
                                         throttle_duration_sec=1.0)
-                time.sleep(period_ns / 1e9)
+                time.sleep(period_ns / 1e9)  # no busy loop at real-time priority if it recurs
                 deadline = time.monotonic_ns()
-                sent = self.device.send(ZERO_TORQUES)
 
     def _send_torques(self, estimate):
         """Take the wrenches that came, work out the torques and send them; True if sent."""
@@ -418,8 +418,9 @@ class KraftMasterNode(Node):
         output = None
         if estimate is not None:
             output = self.force.compute(
-                estimate.rotation, estimate.jacobian, time.monotonic_ns(), pose=self.pose,
-                centre=self.centre, cartesian_velocity=self.cartesian_velocity)
+                estimate.rotation, estimate.jacobian, time.monotonic_ns(),
+                pose=None if self.centre is None else self._pose(), centre=self.centre,
+                cartesian_velocity=self.cartesian_velocity)
             if output.state == STALE and self._last_force_state != STALE:
                 self.get_logger().warning(
                     f'no wrench for {self.config["wrench_timeout"]:g} s (wrench_timeout): '
@@ -482,9 +483,14 @@ class KraftMasterNode(Node):
         velocity = self.velocity.update(theta, result.receive_ns)
         jacobian = [jacobian[row:row + 6] for row in range(0, 36, 6)]
         self.cartesian_velocity = [sum(map(operator.mul, row, velocity)) for row in jacobian]
-        self.pose = np.array(pose).reshape(4, 4)
+        self.pose_entries = pose
         self.loop.frames += 1
         return Estimate(theta, velocity, pose, (pose[0:3], pose[4:7], pose[8:11]), jacobian)
+
+    def _pose(self):
+        """Return the newest wrist pose 0T6 as a new 4x4 array, None before the first frame."""
+        entries = self.pose_entries
+        return None if entries is None else np.array(entries).reshape(4, 4)
 
     def _effort(self, actuator_nm):
         """Joint torques th1..th6 (N*m) that the torques sent amount to; th6 has no motor."""
@@ -512,7 +518,7 @@ class KraftMasterNode(Node):
         self.pots_pub.publish(self._pots_cdr.encode(
             sec, nanosec, [float(count) for count in result.frame.pots], (), ()))
         if self.config['rate_command_enabled'] and self.centre is not None:
-            linear, angular = rate_command(self.pose, self.centre, *self.config['rate_gain'])
+            linear, angular = rate_command(self._pose(), self.centre, *self.config['rate_gain'])
             self.rate_pub.publish(self._twist_cdr.encode(
                 sec, nanosec, linear.tolist() + angular.tolist()))
 
@@ -528,12 +534,12 @@ class KraftMasterNode(Node):
         return response
 
     def _on_set_center(self, request, response):
-        pose = self.pose
+        pose = self._pose()
         response.success = pose is not None
         if pose is None:
             response.message = 'no pose yet: the device has not answered'
         else:
-            self.centre = pose.copy()
+            self.centre = pose
             x, y, z = pose[:3, 3]
             response.message = f'centre set at ({x:.4f}, {y:.4f}, {z:.4f}) m'
         return response
