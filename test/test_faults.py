@@ -723,6 +723,9 @@ def inject_source_kill(session, env):
         paused_ns, _ = session.source.switch(0.0)
         session.wait_command(paused_ns + int(2 * WRENCH_TIMEOUT_S * 1e9), zero=False)
         before = session.diagnostics_after(time.time_ns())
+        # Torque on after `before`: a stall of the source on a loaded machine may have tripped
+        # the watchdog already; the zero after the kill must then come from a trip of its own.
+        session.wait_command(before.stamp_ns, zero=False)
         kill_ns = killed.kill()
     finally:
         killed.close()
