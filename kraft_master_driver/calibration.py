@@ -102,6 +102,16 @@ class ArmCalibration:
         theta[2] -= theta[1]
         return theta
 
+    def joints_to_frame(self, theta):
+        """
+        Return the pot counts (unrounded) that read th1..th6 (six floats) as a list of floats.
+
+        joints_to_pots without numpy for the simulator's serving thread; the same floats.
+        """
+        measured = [theta[joint] for joint in POT_JOINT]
+        measured[2] += theta[1]
+        return [(value - offset) / slope for (offset, slope), value in zip(self._lines, measured)]
+
     def joints_to_pots(self, theta):
         """Return the pot counts (unrounded floats) that read joint angles th1..th6."""
         theta = np.asarray(theta, dtype=float)

@@ -28,6 +28,7 @@ import argparse
 import collections
 import gc
 import math
+import operator
 import os
 import queue
 import random
@@ -288,6 +289,12 @@ class DeviceModel:
     def joint_angles(self):
         """Return the joint angles th1..th6 (rad)."""
         return actuators_to_joints(self.q)
+
+    def joint_angle_list(self):
+        """Return joint_angles() as a list of floats, without numpy."""
+        theta = list(self.q)
+        theta[2] -= theta[1]
+        return theta
 
 
 def _rate(value, name):
@@ -560,18 +567,31 @@ class SimulatedKraftMaster:
             self._handle(command, now)
 
     def _handle(self, command, now):
-        self.received.append((time.time_ns(), command))
+        received_ns = time.time_ns()
         stats = self._stats
         stats['commands'] += 1
         if now < self._stall_until:
             stats['stalled'] += 1
-            return
-        clamped = self._apply(command.counts)
-        self._last_command = now
-        self._amplifiers = True
+        else:
+            # The pots were read when the command arrived: answer first, then drive the motors.
+            clamped = self._clamped(command.counts)
+            self._answer(command.sequence, clamped, now)
+            self._apply(command.counts)
+            self._last_command = now
+            self._amplifiers = True
+            if clamped:
+                stats['clamped'] += 1
+        self.received.append((received_ns, command))
+
+    def _clamped(self, counts):
+        """Return True if any command count is beyond its axis limit."""
+        return any(not -limit <= count <= limit for count, limit in zip(counts, self._limits))
+
+    def _answer(self, sequence, clamped, now):
+        """Send (or, under wire timing, schedule) the reply to command `sequence`."""
+        stats = self._stats
         status = STATUS_AMPLIFIERS_ENABLED
         if clamped:
-            stats['clamped'] += 1
             status |= STATUS_COMMAND_CLAMPED
         errors = sum(self._decoder.errors.values())
         if errors != self._errors_reported:
@@ -583,7 +603,7 @@ class SimulatedKraftMaster:
         if self._drop_rate and self._fault_random.random() < self._drop_rate:
             stats['dropped'] += 1
             return
-        reply = self._codec.encode_reply(command.sequence, self._read_pots(), status)
+        reply = self._codec.encode_reply(sequence, self._read_pots(), status)
         if self._corrupt_rate:
             reply = self._corrupt(reply)
         if self._wire_time:
@@ -593,26 +613,20 @@ class SimulatedKraftMaster:
             self._write_reply(reply)
 
     def _apply(self, counts):
-        """Set the motor torques from command counts; return True if any was clamped."""
-        clamped = False
-        torques = [0.0] * AXIS_COUNT
-        for axis, (count, limit, inverse_scale) in enumerate(
-                zip(counts, self._limits, self._inverse_scale)):
-            if not -limit <= count <= limit:
-                count = limit if count > 0 else -limit
-                clamped = True
-            torques[axis] = count * inverse_scale
+        """Set the motor torques from command counts, each clamped to its axis limit."""
+        torques = [min(max(count, -limit), limit) * inverse_scale for count, limit, inverse_scale
+                   in zip(counts, self._limits, self._inverse_scale)]
         if self.coupling == 'joint':
             torques = kinematics.actuator_torques(torques).tolist()
         self._model.motor[:AXIS_COUNT] = torques
-        return clamped
 
     def _read_pots(self):
         """Return the six pot counts the device reads now (true calibration, noise, 12 bits)."""
-        pots = self.calibration.joints_to_pots(self._model.joint_angles())
+        pots = self.calibration.joints_to_frame(self._model.joint_angle_list())
         if self._noise:
-            pots += self._noise_rng.normal(0.0, self._noise, JOINT_COUNT)
-        return [min(max(round(count), 0), POT_MAX) for count in pots.tolist()]
+            pots = map(operator.add, pots,
+                       self._noise_rng.normal(0.0, self._noise, JOINT_COUNT).tolist())
+        return [min(max(round(count), 0), POT_MAX) for count in pots]
 
     def _corrupt(self, reply):
         """Flip random bits of each byte of `reply` with probability corrupt_byte_rate."""

@@ -102,6 +102,15 @@ def test_frame_to_joints_gives_the_floats_of_pots_to_joints(arm):
 
 
 @pytest.mark.parametrize('arm', ARMS)
+def test_joints_to_frame_gives_the_floats_of_joints_to_pots(arm):
+    cal = ArmCalibration.nominal(arm)
+    for theta in np.random.default_rng(4).uniform(-2.0, 2.0, (500, 6)).tolist():
+        pots = cal.joints_to_frame(theta)
+        assert all(type(count) is float for count in pots)
+        assert pots == cal.joints_to_pots(theta).tolist()
+
+
+@pytest.mark.parametrize('arm', ARMS)
 def test_pots_and_joints_are_inverse(arm):
     cal = ArmCalibration.nominal(arm)
     rng = np.random.default_rng(2)
