@@ -11,6 +11,9 @@ as JSON:
 
 - achieved cycle rate (commands the device received per second), joint_states per second at
   the subscriber (js/s), late and missed cycles;
+- bare/s: the cycles per second a loop that does nothing but sleep to each deadline reaches at
+  the same rate, alone, just before the run (machine.bare_loop, at the driver's loop_priority,
+  skipping missed periods as the driver does): the most this machine allowed at that moment;
 - cycle period distribution (the joint_states stamps, taken when each pot frame arrived);
 - pot frame at the driver -> joint_states received by the subscriber;
 - wrench published -> the matching torque command received by the device: the publisher
@@ -39,8 +42,9 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from kraft_master_driver.protocol import get_codec  # noqa: E402, I100
-from machine import cpu_times, steal_fraction  # noqa: E402, I100
+from machine import bare_loop, cpu_times, steal_fraction  # noqa: E402, I100
 
+DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
 FLIP_PERIOD_S = 0.02
 WRENCH_RATE_HZ = 1000.0
 MOMENT_NM = 0.5
@@ -181,6 +185,15 @@ def percentiles(values, scale):
             'n': int(values.size)}
 
 
+def loop_priority(driver_parameters):
+    """Return the loop_priority among `driver_parameters` (NAME:=VALUE), else its default."""
+    for parameter in driver_parameters:
+        name, _, value = parameter.partition(':=')
+        if name == 'loop_priority':
+            return int(value)
+    return DEFAULT_LOOP_PRIORITY
+
+
 def wrench_latencies(flips, commands):
     """Flip publish time -> first device command with the new sign of axis 1 (s)."""
     times, axis1 = commands[:, 0], commands[:, 1]
@@ -195,6 +208,7 @@ def wrench_latencies(flips, commands):
 def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_priority=0):
     """Run the four processes for `duration` s; return the figures of this run."""
     env = ros_env(domain_id)
+    floor = None if baud else bare_loop(rate_hz, duration, loop_priority(driver_parameters))
     tag = f'{rate_hz:g}Hz_{baud or "pty"}'
     record = str(workdir / f'device_{tag}.npy')
     sim, port = start_simulator(env, record, baud, sim_priority)
@@ -247,6 +261,7 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'window_s': window_s,
         'cycles_per_s': cycles / window_s,
         'joint_states_per_s': len(states_window) / window_s,
+        'bare_loop': floor,
         'late_cycles': int(diagnostics.get('late cycles', -1)),
         'missed_cycles': int(diagnostics.get('missed cycles', -1)),
         'period_ms': percentiles(np.diff(np.sort(states_window[:, 1])), 1e-6),
@@ -294,10 +309,10 @@ def fmt(value, digits=3):
 
 
 def print_table(results):
-    print(f'{"run":>21} {"cycles/s":>9} {"js/s":>7} {"late":>5} {"missed":>6} | period ms: '
-          f'{"med":>6} {"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: {"med":>6} {"p99":>6} '
-          f'{"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | cpu us/cycle: '
-          f'{"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire | steal')
+    print(f'{"run":>21} {"cycles/s":>9} {"bare/s":>7} {"js/s":>7} {"late":>5} {"missed":>6} | '
+          f'period ms: {"med":>6} {"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: '
+          f'{"med":>6} {"p99":>6} {"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | '
+          f'cpu us/cycle: {"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire | steal')
     for r in results:
         period, sub, wrench, cpu = (r['period_ms'], r['pot_frame_to_subscriber_ms'],
                                     r['wrench_to_device_ms'], r['cpu_per_cycle_us'])
@@ -305,7 +320,8 @@ def print_table(results):
         if 'median_of' in r:
             name = f'median {name}'
         wire = r.get('achieved_over_wire_limited')
-        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {r["joint_states_per_s"]:7.1f} '
+        bare = '-' if r['bare_loop'] is None else f'{r["bare_loop"]["cycles_per_s"]:.1f}'
+        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {bare:>7} {r["joint_states_per_s"]:7.1f} '
               f'{r["late_cycles"]:5.0f} '
               f'{r["missed_cycles"]:6.0f} |            {fmt(period["median"]):>6} '
               f'{fmt(period["p99"]):>6} {fmt(period["p99.9"]):>6} {fmt(period["max"]):>6} | '

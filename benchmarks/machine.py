@@ -1,7 +1,19 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""What the machine did during a benchmark run: CPU time stolen by the hypervisor."""
+"""
+What the machine did during a benchmark run, and what it allows at all.
+
+cpu_times() and steal_fraction(): the CPU time the hypervisor stole. bare_loop(): a loop that
+does nothing but sleep to each deadline, paced like the driver's, so that the driver's cycle
+rate can be read against the rate this machine gives a do-nothing loop at the same moment.
+"""
+import argparse
+import json
+import os
 import pathlib
+import subprocess
+import sys
+import time
 
 
 def cpu_times():
@@ -15,3 +27,72 @@ def steal_fraction(start, end):
     """Share of all CPU time between two cpu_times() readings that the hypervisor took."""
     total = sum(end.values()) - sum(start.values())
     return (end['steal'] - start['steal']) / total if total else 0.0
+
+
+def bare_loop(rate_hz, seconds, priority):
+    """
+    Run pace_nothing() in a child process; return its figures.
+
+    priority: SCHED_FIFO priority of the child (0, or refused by the OS: normal scheduling).
+    """
+    output = subprocess.run(
+        [sys.executable, __file__, str(rate_hz), str(seconds), str(priority)],
+        check=True, capture_output=True, text=True).stdout
+    return json.loads(output)
+
+
+def pace_nothing(rate_hz, seconds, priority):
+    """
+    Sleep to each deadline for `seconds`, with the driver's rule for a late wake-up.
+
+    As the driver's loop: a late cycle runs at once and whole periods that cannot be caught
+    up are skipped (missed). Return cycles/s, missed cycles/s, how late each wake-up was
+    (median, p99, max, microseconds), the scheduler used and the steal share.
+    """
+    scheduler = 'normal'
+    if priority:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            scheduler = f'SCHED_FIFO {priority}'
+        except OSError:
+            pass
+    period_ns = round(1e9 / rate_hz)
+    lateness = []
+    missed = 0
+    machine_start = cpu_times()
+    start = deadline = time.monotonic_ns()
+    end = start + round(seconds * 1e9)
+    while deadline < end:
+        deadline += period_ns
+        time.sleep(max(0, deadline - time.monotonic_ns()) / 1e9)
+        now = time.monotonic_ns()
+        lateness.append(now - deadline)
+        skipped = (now - deadline) // period_ns
+        missed += skipped
+        deadline += skipped * period_ns
+    elapsed = (time.monotonic_ns() - start) / 1e9
+    lateness.sort()
+    return {
+        'rate_hz': rate_hz,
+        'scheduler': scheduler,
+        'cycles_per_s': len(lateness) / elapsed,
+        'missed_per_s': missed / elapsed,
+        'wake_late_us': {'median': lateness[len(lateness) // 2] / 1e3,
+                         'p99': lateness[int(0.99 * (len(lateness) - 1))] / 1e3,
+                         'max': lateness[-1] / 1e3},
+        'cpu_steal': steal_fraction(machine_start, cpu_times()),
+    }
+
+
+def main():
+    """Print pace_nothing()'s figures as JSON (the child process of bare_loop)."""
+    parser = argparse.ArgumentParser(description=pace_nothing.__doc__.strip().splitlines()[0])
+    parser.add_argument('rate_hz', type=float)
+    parser.add_argument('seconds', type=float)
+    parser.add_argument('priority', type=int)
+    args = parser.parse_args()
+    print(json.dumps(pace_nothing(args.rate_hz, args.seconds, args.priority)))
+
+
+if __name__ == '__main__':
+    main()
