@@ -8,6 +8,9 @@ Two runs, the simulator started each time as `python -m kraft_master_driver.simu
   and the round-trip time distribution (median, p99, max);
 - with the simulator delaying each reply by its wire time at 115200 baud: the achieved rate as
   a fraction of the wire-limited rate (15 + 18 bytes at 10 bits per byte per cycle).
+Both again with a bare far end in place of the simulator: a pty whose other end answers every
+15 bytes with 18 and does nothing else, and a host that only writes and reads (os.write, poll,
+os.read): what this machine's pseudo-terminals and scheduler allow any driver and device.
 Targets: >= 2000 cycles/s and p99 round trip < 1 ms flat out; >= 95 % of the wire-limited
 rate at 115200 baud. Prints a table (cpu us: the driver process's CPU time per cycle; steal:
 the share of the machine's CPU time the hypervisor took during the run);
@@ -18,14 +21,17 @@ import json
 import math
 import os
 import platform
+import select
 import subprocess
 import sys
 import time
+import tty
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from kraft_master_driver.device import KmcDevice  # noqa: E402, I100
+from kraft_master_driver.protocol import get_codec  # noqa: E402, I100
 from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
 RATE_TARGET = 2000.0  # cycles/s flat out
@@ -34,17 +40,28 @@ WIRE_FRACTION_TARGET = 0.95
 WIRE_BAUD = 115200
 FLAT_OUT_BAUD = 1_000_000  # the device default; a pty ignores it
 START_TIMEOUT_S = 30.0
+CODEC = get_codec('kraft-default')
+WAKE_EARLY_S = 0.0003  # as the simulator: sleep until this long before a reply is due, then spin
+BARE_REPLY_TIMEOUT_MS = 50
 
 
 class SimulatorProcess:
     """The simulator CLI in a child process; the context value is its port path."""
 
-    def __init__(self, baud=None, priority=0):
-        """Run with wire timing at baud (None: none), serving at SCHED_FIFO priority."""
-        self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulator',
-                           '--priority', str(priority)]
-        if baud is not None:
-            self._arguments += ['--baud', str(baud)]
+    def __init__(self, baud=None, priority=0, bare=False):
+        """
+        Run with wire timing at baud (None: none), serving at SCHED_FIFO priority.
+
+        bare: run this file's bare far end (run_bare_far_end) in place of the simulator.
+        """
+        if bare:
+            self._arguments = [sys.executable, __file__, '--bare-far-end', '--baud',
+                               str(baud or 0), '--sim-priority', str(priority)]
+        else:
+            self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulator',
+                               '--priority', str(priority)]
+            if baud is not None:
+                self._arguments += ['--baud', str(baud)]
         self._process = None
 
     def __enter__(self):
@@ -112,6 +129,77 @@ def run_cycles(port, cycles, warmup, baud):
     }
 
 
+def run_bare_far_end(baud, priority):
+    """
+    Answer every command-sized request on a new pty with a reply-sized block of zeros.
+
+    baud: 0, or reply the wire time of a command and its reply after the request arrived, as
+    the simulator's wire timing does. Prints the port path, then serves until SIGTERM.
+    """
+    if priority:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    print(f'port: {os.ttyname(slave)}', flush=True)
+    delay = CODEC.wire_cycle_time(baud) if baud else 0.0
+    reply = bytes(CODEC.reply_size)
+    pending = 0
+    while True:
+        pending += len(os.read(master, 4096))
+        arrived = time.monotonic()
+        while pending >= CODEC.command_size:
+            pending -= CODEC.command_size
+            if delay:
+                due = arrived + delay
+                time.sleep(max(0.0, due - WAKE_EARLY_S - time.monotonic()))
+                while time.monotonic() < due:
+                    pass
+            os.write(master, reply)
+
+
+def run_bare_cycles(port, cycles, warmup, baud):
+    """Cycle with the bare far end: write a command's bytes, read a reply's; the figures."""
+    fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    request = bytes(CODEC.command_size)
+    round_trips = np.empty(cycles)
+    try:
+        for index in range(-warmup, cycles):
+            if index == 0:
+                machine_start = cpu_times()
+                start = time.perf_counter()
+                cpu_start = time.process_time()
+            sent = time.perf_counter()
+            os.write(fd, request)
+            received = 0
+            while received < CODEC.reply_size:
+                if not poller.poll(BARE_REPLY_TIMEOUT_MS):
+                    raise RuntimeError(f'{port}: no reply from the bare far end')
+                received += len(os.read(fd, CODEC.reply_size - received))
+            if index >= 0:
+                round_trips[index] = time.perf_counter() - sent
+        elapsed = time.perf_counter() - start
+        cpu = time.process_time() - cpu_start
+        steal = steal_fraction(machine_start, cpu_times())
+    finally:
+        os.close(fd)
+    round_trips_us = round_trips * 1e6
+    return {
+        'cycles': cycles,
+        'replies': cycles,
+        'timeouts': 0,
+        'rate_hz': cycles / elapsed,
+        'driver_cpu_us_per_cycle': cpu / cycles * 1e6,
+        'round_trip_median_us': float(np.median(round_trips_us)),
+        'round_trip_p99_us': float(np.percentile(round_trips_us, 99)),
+        'round_trip_max_us': float(round_trips_us.max()),
+        'wire_limited_rate_hz': 1.0 / CODEC.wire_cycle_time(baud),
+        'baud': baud,
+        'cpu_steal': steal,
+    }
+
+
 def torque_pattern(index):
     """Return five small torques (N*m) that change every cycle."""
     phase = index * 0.01
@@ -130,7 +218,11 @@ def main():
     parser.add_argument('--sim-priority', type=int, default=0,
                         help="the simulator's --priority (default 0: normal)")
     parser.add_argument('--json', metavar='PATH', help='also write the figures to PATH')
+    parser.add_argument('--bare-far-end', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--baud', type=int, default=0, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.bare_far_end:
+        return run_bare_far_end(args.baud, args.sim_priority)
     if args.host_priority:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.host_priority))
 
@@ -138,18 +230,25 @@ def main():
         flat = run_cycles(port, args.cycles, args.cycles // 10, FLAT_OUT_BAUD)
     with SimulatorProcess(WIRE_BAUD, args.sim_priority) as port:
         wire = run_cycles(port, args.wire_cycles, 100, WIRE_BAUD)
-    wire['fraction_of_wire_limited'] = wire['rate_hz'] / wire['wire_limited_rate_hz']
+    with SimulatorProcess(priority=args.sim_priority, bare=True) as port:
+        bare_flat = run_bare_cycles(port, args.cycles, args.cycles // 10, FLAT_OUT_BAUD)
+    with SimulatorProcess(WIRE_BAUD, args.sim_priority, bare=True) as port:
+        bare_wire = run_bare_cycles(port, args.wire_cycles, 100, WIRE_BAUD)
+    for figures in (wire, bare_wire):
+        figures['fraction_of_wire_limited'] = figures['rate_hz'] / figures['wire_limited_rate_hz']
 
-    print(f'KmcDevice <-> simulator (separate process) over a pty; Python '
-          f'{platform.python_version()}, {os.cpu_count()} CPUs')
+    print(f'KmcDevice <-> simulator (separate process) over a pty, then a bare host <-> a bare '
+          f'far end; Python {platform.python_version()}, {os.cpu_count()} CPUs')
     header = ('run', 'cycles', 'timeouts', 'cycles/s', 'median us', 'p99 us', 'max us',
               'cpu us', 'wire-limited/s', 'achieved/wire', 'steal')
-    print('{:<22}{:>8}{:>10}{:>10}{:>11}{:>9}{:>9}{:>8}{:>16}{:>15}{:>7}'.format(*header))
-    for name, figures, fraction in (('pty flat out', flat, '-'),
-                                    (f'pty wire {WIRE_BAUD} baud', wire,
-                                     f'{wire["fraction_of_wire_limited"]:.1%}')):
-        limit = (f'{figures["wire_limited_rate_hz"]:.0f}' if figures is wire else '-')
-        print(f'{name:<22}{figures["cycles"]:>8}{figures["timeouts"]:>10}'
+    print('{:<27}{:>8}{:>10}{:>10}{:>11}{:>9}{:>9}{:>8}{:>16}{:>15}{:>7}'.format(*header))
+    rows = (('pty flat out', flat), (f'pty wire {WIRE_BAUD} baud', wire),
+            ('bare pty flat out', bare_flat), (f'bare pty wire {WIRE_BAUD} baud', bare_wire))
+    for name, figures in rows:
+        timed = 'fraction_of_wire_limited' in figures
+        limit = f'{figures["wire_limited_rate_hz"]:.0f}' if timed else '-'
+        fraction = f'{figures["fraction_of_wire_limited"]:.1%}' if timed else '-'
+        print(f'{name:<27}{figures["cycles"]:>8}{figures["timeouts"]:>10}'
               f'{figures["rate_hz"]:>10.0f}{figures["round_trip_median_us"]:>11.0f}'
               f'{figures["round_trip_p99_us"]:>9.0f}{figures["round_trip_max_us"]:>9.0f}'
               f'{figures["driver_cpu_us_per_cycle"]:>8.0f}{limit:>16}{fraction:>15}'
@@ -164,12 +263,14 @@ def main():
           f' {flat["round_trip_p99_us"]:.0f} ({"met" if checks["flat_out_p99"] else "MISSED"});'
           f' >= {WIRE_FRACTION_TARGET:.0%} of wire-limited: '
           f'{wire["fraction_of_wire_limited"]:.1%}'
-          f' ({"met" if checks["wire_fraction"] else "MISSED"})')
+          f' ({"met" if checks["wire_fraction"] else "MISSED"}; bare host and far end: '
+          f'{bare_wire["fraction_of_wire_limited"]:.1%})')
     if args.json:
         with open(args.json, 'w') as stream:
-            json.dump({'flat_out': flat, 'wire_115200': wire, 'targets_met': checks}, stream,
-                      indent=2)
+            json.dump({'flat_out': flat, 'wire_115200': wire, 'bare_flat_out': bare_flat,
+                       'bare_wire_115200': bare_wire, 'targets_met': checks}, stream, indent=2)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())
