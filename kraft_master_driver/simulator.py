@@ -567,21 +567,20 @@ class SimulatedKraftMaster:
             self._handle(command, now)
 
     def _handle(self, command, now):
-        received_ns = time.time_ns()
+        self.received.append((time.time_ns(), command))  # before the reply: a host can count on it
         stats = self._stats
         stats['commands'] += 1
         if now < self._stall_until:
             stats['stalled'] += 1
-        else:
-            # The pots were read when the command arrived: answer first, then drive the motors.
-            clamped = self._clamped(command.counts)
-            self._answer(command.sequence, clamped, now)
-            self._apply(command.counts)
-            self._last_command = now
-            self._amplifiers = True
-            if clamped:
-                stats['clamped'] += 1
-        self.received.append((received_ns, command))
+            return
+        # The pots were read when the command arrived: answer first, then drive the motors.
+        clamped = self._clamped(command.counts)
+        self._answer(command.sequence, clamped, now)
+        self._apply(command.counts)
+        self._last_command = now
+        self._amplifiers = True
+        if clamped:
+            stats['clamped'] += 1
 
     def _clamped(self, counts):
         """Return True if any command count is beyond its axis limit."""

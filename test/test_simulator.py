@@ -124,9 +124,10 @@ def expected_pots(calibration, theta):
 
 def test_every_command_gets_one_reply_with_its_sequence(rig):
     simulator, host = rig()
-    for _ in range(600):
+    for count in range(1, 601):
         frame = host.exchange()
         assert frame is not None
+        assert len(simulator.received) == count  # recorded before its reply left
     assert [frame.sequence for frame in host.frames] == [i % 256 for i in range(600)]
     wait_for(lambda: simulator.stats['replies'] == 600)
     stats = simulator.stats
