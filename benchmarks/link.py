@@ -110,20 +110,25 @@ def run_cycles(port, cycles, warmup, baud):
         elapsed = time.perf_counter() - start
         cpu = time.process_time() - cpu_start
         steal = steal_fraction(machine_start, cpu_times())
-        wire_limited = device.wire_limited_rate()
         stats = device.stats
-    round_trips_us = round_trips[:completed] * 1e6
+    figures = cycle_figures(cycles, round_trips[:completed], elapsed, cpu, baud, steal)
+    figures.update(timeouts=stats['timeouts'], stale_replies=stats['stale_replies'])
+    return figures
+
+
+def cycle_figures(cycles, round_trips, elapsed, cpu, baud, steal):
+    """Return the figures of a run of `cycles`: round_trips (s, one per reply), elapsed, CPU s."""
+    round_trips_us = round_trips * 1e6
     return {
         'cycles': cycles,
-        'replies': completed,
-        'timeouts': stats['timeouts'],
-        'stale_replies': stats['stale_replies'],
+        'replies': round_trips.size,
+        'timeouts': cycles - round_trips.size,
         'rate_hz': cycles / elapsed,
         'driver_cpu_us_per_cycle': cpu / cycles * 1e6,
         'round_trip_median_us': float(np.median(round_trips_us)),
         'round_trip_p99_us': float(np.percentile(round_trips_us, 99)),
         'round_trip_max_us': float(round_trips_us.max()),
-        'wire_limited_rate_hz': wire_limited,
+        'wire_limited_rate_hz': 1.0 / CODEC.wire_cycle_time(baud),
         'baud': baud,
         'cpu_steal': steal,
     }
@@ -184,20 +189,7 @@ def run_bare_cycles(port, cycles, warmup, baud):
         steal = steal_fraction(machine_start, cpu_times())
     finally:
         os.close(fd)
-    round_trips_us = round_trips * 1e6
-    return {
-        'cycles': cycles,
-        'replies': cycles,
-        'timeouts': 0,
-        'rate_hz': cycles / elapsed,
-        'driver_cpu_us_per_cycle': cpu / cycles * 1e6,
-        'round_trip_median_us': float(np.median(round_trips_us)),
-        'round_trip_p99_us': float(np.percentile(round_trips_us, 99)),
-        'round_trip_max_us': float(round_trips_us.max()),
-        'wire_limited_rate_hz': 1.0 / CODEC.wire_cycle_time(baud),
-        'baud': baud,
-        'cpu_steal': steal,
-    }
+    return cycle_figures(cycles, round_trips, elapsed, cpu, baud, steal)
 
 
 def torque_pattern(index):
