@@ -573,14 +573,14 @@ class SimulatedKraftMaster:
         if now < self._stall_until:
             stats['stalled'] += 1
             return
-        # The pots were read when the command arrived: answer first, then drive the motors.
         clamped = self._clamped(command.counts)
+        if clamped:
+            stats['clamped'] += 1  # before the reply: a host that has it can count on it
+        # The pots were read when the command arrived: answer first, then drive the motors.
         self._answer(command.sequence, clamped, now)
         self._apply(command.counts)
         self._last_command = now
         self._amplifiers = True
-        if clamped:
-            stats['clamped'] += 1
 
     def _clamped(self, counts):
         """Return True if any command count is beyond its axis limit."""
