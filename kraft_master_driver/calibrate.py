@@ -38,7 +38,8 @@ import numpy as np
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 SIM_PORT = 'sim'
 JOINT_KEYS = tuple(f'th{i}' for i in range(1, 7))
-MAX_MISSED_REPLIES = 50  # consecutive cycles without a reply before sampling gives up
+MAX_MISSED_REPLIES = 50  # consecutive commands without a reply before sampling gives up
+REOPEN_POLL = 0.005  # s between looks at a link the device is reopening
 STOP_OVERSHOOT = math.radians(5.0)  # how far beyond a stop the simulated hand pushes
 STOP_TOLERANCE = 1e-9  # rad: a joint on its stop (th3 = q3 - q2 rounds)
 SETTLE_TIMEOUT = 20.0  # s the simulated hand may take to come to rest
@@ -154,10 +155,22 @@ def parse_fixture(text):
 
 
 def sample(device, count):
-    """Read `count` pot frames with zero torque commanded; return them as (count, 6)."""
+    """
+    Read `count` pot frames with zero torque commanded; return them as (count, 6).
+
+    Only commands that went out unanswered count as missed: while the device reopens a link
+    it dropped after missing replies, sampling waits; it fails if the port cannot be reopened.
+    """
     frames, missed = [], 0
+    failed_opens = device.stats['failed_opens']
     while len(frames) < count:
-        result = device.cycle(ZERO_TORQUES)
+        if not device.send(ZERO_TORQUES):
+            if device.stats['failed_opens'] > failed_opens:
+                raise CalibrationError(f'{device.port}: no reply from the device '
+                                       f'({device.last_error})')
+            time.sleep(REOPEN_POLL)
+            continue
+        result = device.receive()
         if result is None:
             missed += 1
             if missed >= MAX_MISSED_REPLIES:

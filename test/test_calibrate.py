@@ -3,9 +3,13 @@
 """kraft_master_calibrate against a simulated arm whose true calibration is not the paper's."""
 import math
 import pathlib
+import threading
+import time
 
 from kraft_master_driver import calibrate, kinematics
-from kraft_master_driver.calibration import ArmCalibration, read_parameter_file
+from kraft_master_driver.calibration import (
+    ArmCalibration, CalibrationError, read_parameter_file)
+from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
@@ -135,6 +139,37 @@ def test_silent_device_is_an_error(tmp_path, capsys):
                                '--out', str(tmp_path / 'x.yaml')], ask=lambda _: '')
     assert code == 1
     assert 'no reply from the device' in capsys.readouterr().err
+
+
+def test_sampling_waits_while_the_device_reopens_a_link_it_dropped():
+    with SimulatedKraftMaster(arm='right') as simulator, KmcDevice(simulator.port) as device:
+        # Silent until the device has given the link up (25 missed replies): then answer.
+        simulator.stall(60_000)
+
+        def answer_after_the_link_fault():
+            deadline = time.monotonic() + 60.0
+            while device.stats['link_faults'] == 0 and time.monotonic() < deadline:
+                time.sleep(0.001)
+            simulator.stall(0)
+
+        helper = threading.Thread(target=answer_after_the_link_fault)
+        helper.start()
+        try:
+            pots = calibrate.sample(device, 20)
+        finally:
+            helper.join()
+        assert pots.shape == (20, 6)
+        stats = device.stats
+        assert stats['link_faults'] == 1 and stats['reconnects'] == 1
+
+
+def test_sampling_fails_when_the_port_cannot_be_reopened():
+    with SimulatedKraftMaster(arm='right') as simulator, KmcDevice(simulator.port) as device:
+        assert calibrate.sample(device, 5).shape == (5, 6)
+        simulator.unplug()
+        with pytest.raises(CalibrationError, match='no reply from the device.*cannot open'):
+            calibrate.sample(device, 5)
+        assert device.stats['failed_opens'] == 1
 
 
 def synthetic_rows(truth, rng, samples=50, noise=1.0):
