@@ -21,6 +21,9 @@ from std_srvs.srv import SetBool
 REPO = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = 'kraft_master_driver'
 _domain_ids = itertools.count(random.Random(os.getpid()).randrange(20, 180, 10))
+# Seconds a condition may take to come true: a start-up took over 20 s on a machine loaded
+# about 15 times over its cores. Only a failing wait lasts this long.
+WAIT_S = 120.0
 
 
 def next_domain_id():
@@ -28,7 +31,7 @@ def next_domain_id():
     return next(_domain_ids) % 230 + 1
 
 
-def wait_for(condition, timeout=20.0, interval=0.01, spin=None):
+def wait_for(condition, timeout=WAIT_S, interval=0.01, spin=None):
     """Poll `condition` (spinning `spin` between polls) until it is truthy or time runs out."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -92,7 +95,7 @@ class RosClient:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.01)
 
-    def wait(self, condition, timeout=20.0):
+    def wait(self, condition, timeout=WAIT_S):
         """Spin until `condition()` is truthy."""
         return wait_for(condition, timeout, spin=self.spin)
 
@@ -116,7 +119,7 @@ class RosClient:
             self.publish_wrench(wrench, frame_id)
             self.spin(period)
 
-    def stream_wrench_until(self, wrench, frame_id, condition, timeout=20.0):
+    def stream_wrench_until(self, wrench, frame_id, condition, timeout=WAIT_S):
         """Publish the wrench every few ms until `condition()` holds."""
         def publish_and_check():
             self.publish_wrench(wrench, frame_id)
@@ -125,7 +128,7 @@ class RosClient:
 
     def set_force_enabled(self, enabled):
         """Call enable_force and return the response."""
-        assert self.enable_client.wait_for_service(timeout_sec=20.0)
+        assert self.enable_client.wait_for_service(timeout_sec=WAIT_S)
         future = self.enable_client.call_async(SetBool.Request(data=enabled))
         self.wait(future.done)
         return future.result()
@@ -154,13 +157,13 @@ class DriverProcess:
             command, env=installed_env(prefix, domain_id), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
 
-    def interrupt(self, sig=signal.SIGINT, timeout=20.0):
+    def interrupt(self, sig=signal.SIGINT, timeout=WAIT_S):
         """Send `sig`, wait for the exit; return (exit code, output)."""
         self.process.send_signal(sig)
         output, _ = self.process.communicate(timeout=timeout)
         return self.process.returncode, output
 
-    def wait_exit(self, timeout=30.0):
+    def wait_exit(self, timeout=WAIT_S):
         """Wait for the process to end by itself; return (exit code, output)."""
         output, _ = self.process.communicate(timeout=timeout)
         return self.process.returncode, output

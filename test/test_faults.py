@@ -37,7 +37,8 @@ import time
 from typing import Callable, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import DriverProcess, installed_env, next_domain_id, REPO, wait_for
+from driver_harness import (
+    DriverProcess, installed_env, next_domain_id, REPO, wait_for, WAIT_S)
 from geometry_msgs.msg import WrenchStamped
 from kraft_master_driver.node import PARAMETERS
 from kraft_master_driver.simulator import SimulatedKraftMaster
@@ -176,7 +177,7 @@ class Driver:
             return code
         return 'started' if any(STARTED.search(line) for line in self.lines) else None
 
-    def stop(self, sig=signal.SIGINT, timeout=20.0):
+    def stop(self, sig=signal.SIGINT, timeout=WAIT_S):
         """Send `sig`, wait for the exit; return the exit code."""
         self.process.send_signal(sig)
         code = self.process.wait(timeout=timeout)
@@ -349,7 +350,7 @@ class FaultSession:
             self.close()
             raise
 
-    def wait(self, condition, timeout=20.0):
+    def wait(self, condition, timeout=WAIT_S):
         """Spin the client until `condition()` is truthy; return its value."""
         return wait_for(condition, timeout, spin=lambda: self.client.spin(CHECK_INTERVAL_S))
 
@@ -391,7 +392,7 @@ class FaultSession:
         """Time of the first (zero or non-zero torque) command at or after `since_ns`."""
         return next((t for t, c in self.commands(since_ns) if any(c.counts) != zero), None)
 
-    def wait_command(self, since_ns, zero, timeout=20.0):
+    def wait_command(self, since_ns, zero, timeout=WAIT_S):
         """Wait for a (zero or non-zero torque) command at or after `since_ns`; its time."""
         return self.wait(lambda: self.first_command(since_ns, zero), timeout)
 
@@ -404,7 +405,7 @@ class FaultSession:
         if self._parameters is None:
             self._parameters = AsyncParameterClient(self.client.node,
                                                     f'{self.namespace}/kraft_master_node')
-            assert self._parameters.wait_for_services(timeout_sec=20.0)
+            assert self._parameters.wait_for_services(timeout_sec=WAIT_S)
         return self._parameters
 
     def call(self, future):
@@ -984,7 +985,7 @@ class StartupRuns:
         driver = Driver(self.prefix, next_domain_id(), case.parameters, params_file=params_file)
         try:
             outcome = driver.started_or_exited()
-            deadline = started + 60.0
+            deadline = started + WAIT_S
             while outcome is None and time.monotonic() < deadline:
                 time.sleep(0.02)
                 outcome = driver.started_or_exited()

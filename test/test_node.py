@@ -241,8 +241,7 @@ def test_refused_real_time_priority_warns_and_runs_at_normal_priority(install_pr
     running = Session(install_prefix, [('loop_priority', '30')], wrapper=without_sys_nice)
     try:
         count = len(running.client.joint_states)
-        running.client.spin(0.5)
-        assert len(running.client.joint_states) > count + 100
+        running.client.wait(lambda: len(running.client.joint_states) > count + 100)
         threads = scheduling_of_threads(running.driver.process.pid)
         assert all(policy == os.SCHED_OTHER for policy, _ in threads), threads
         code, output = running.driver.interrupt()

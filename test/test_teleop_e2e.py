@@ -12,7 +12,7 @@ import collections
 import math
 import threading
 
-from driver_harness import DriverProcess, next_domain_id, RosClient
+from driver_harness import DriverProcess, next_domain_id, RosClient, WAIT_S
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver import kinematics
 from kraft_master_driver.simulator import SimulatedKraftMaster, Workspace
@@ -105,7 +105,7 @@ class Teleoperation:
             self.true_master_depths.append(
                 depth(kinematics.forward(theta, ARM)[:3, 3], self.wall_point))
 
-    def wait(self, condition, timeout=20.0):
+    def wait(self, condition, timeout=WAIT_S):
         """Spin until `condition()` holds."""
         return self.client.wait(condition, timeout)
 
