@@ -796,8 +796,11 @@ class TestWrenchInput:
         end_ns, _ = session.source.switch(SOURCE_RATE_HZ)
         after = session.diagnostics_after(end_ns)
         window = session.commands(start_ns, end_ns)
-        assert window and zero_commands(window) < len(window) / 2, (
-            f'zero stamp not accepted: {zero_commands(window)} of {len(window)} commands zero')
+        # A lost reply zeroes the next command: on a loaded machine, not the wrench's doing.
+        lost = counter_growth(before, after, ('link timeouts',))['link timeouts']
+        assert window and zero_commands(window) - lost < len(window) / 2, (
+            f'zero stamp not accepted: {zero_commands(window)} of {len(window)} commands zero, '
+            f'{lost} after a lost reply')
         assert (after.count('force rejected_bad_timestamp') ==
                 before.count('force rejected_bad_timestamp'))
 
@@ -813,10 +816,12 @@ class TestWrenchInput:
         # The torques stay within their limits, and on: the wrench is valid.
         assert figures['loop_hz'] > 0.25 * figures['loop_hz_before'], figures
         assert figures['largest_count'] <= COUNT_LIMIT, figures
-        assert figures['zero_commands'] < figures['commands'] / 2, figures
-        assert after.count('internal errors') == 0
         growth = counter_growth(before, after, ('late cycles', 'missed cycles',
                                                 'force watchdog_trips', 'link timeouts'))
+        # A lost reply zeroes the next command: on a loaded machine, not the flood's doing.
+        assert (figures['zero_commands'] - growth['link timeouts'] <
+                figures['commands'] / 2), (figures, growth)
+        assert after.count('internal errors') == 0
         record('wrench', 'wrench flood at 20 kHz', None, None, 'torque stays on (valid wrench)',
                counters=growth, **figures)
 
