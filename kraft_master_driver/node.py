@@ -5,10 +5,8 @@ kraft_master_node: the ROS 2 driver of one Kraft Master hand controller.
 
 One loop thread owns the device and the timing (wrenches in, torques out, pots in,
 kinematics, publish); the rclpy executor spins in the main thread for services, parameters
-and diagnostics. Only this module imports rclpy.
+and diagnostics. The core modules it uses import no rclpy.
 """
-import gc
-import math
 import operator
 import os
 import sys
@@ -22,18 +20,16 @@ from kraft_master_driver import cdr, kinematics
 from kraft_master_driver.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
+from kraft_master_driver.parameters import (
+    check_value, declare_parameters, ParameterError, run_node, Spec)
 from kraft_master_driver.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.teleop import (
     BASE_FRAME, ForceReflection, rate_command, STALE, WRIST_FRAME)
 import numpy as np
-from rcl_interfaces.msg import (
-    FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
-import rclpy
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import CallbackGroup
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-import rclpy.exceptions
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -43,18 +39,6 @@ SIM_PORT = 'sim'
 GIL_SWITCH_INTERVAL_S = 0.0002
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 POT_NAMES = [f'pot{i}' for i in range(1, 7)]
-
-
-class Spec(NamedTuple):
-    """One parameter: default, description with units, range, whether fixed at start-up."""
-
-    default: object
-    description: str
-    read_only: bool = True
-    low: float = None
-    high: float = None
-    choices: tuple = ()
-    length: int = None
 
 
 _NOMINAL = ArmCalibration.nominal('right').to_parameters()['calibration']
@@ -131,51 +115,6 @@ PARAMETERS = {
 }
 
 
-class ParameterError(ValueError):
-    """A parameter value the driver cannot run with; the message names the parameter."""
-
-
-def _descriptor(name, spec):
-    descriptor = ParameterDescriptor(name=name, description=spec.description,
-                                     read_only=spec.read_only)
-    if spec.choices:
-        descriptor.additional_constraints = 'one of: ' + ', '.join(spec.choices)
-    if spec.length:
-        descriptor.additional_constraints = (
-            f'{spec.length} values, each within {spec.low:g}..{spec.high:g}')
-    elif spec.low is not None and isinstance(spec.default, int):
-        descriptor.integer_range = [IntegerRange(
-            from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    elif spec.low is not None:
-        descriptor.floating_point_range = [FloatingPointRange(
-            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    return descriptor
-
-
-def check_value(name, value):
-    """Return `value` if it suits parameter `name`, else raise ParameterError."""
-    spec = PARAMETERS[name]
-    if value is None:
-        raise ParameterError(f'parameter {name}: no value (an empty list has no type)')
-    if spec.choices and value not in spec.choices:
-        raise ParameterError(
-            f'parameter {name}: {value!r} is not one of {", ".join(spec.choices)}')
-    if spec.length is not None:
-        values = list(value)
-        if len(values) != spec.length:
-            raise ParameterError(
-                f'parameter {name}: expected {spec.length} values, got {len(values)}')
-        for item in values:
-            if not math.isfinite(item) or not spec.low <= item <= spec.high:
-                raise ParameterError(f'parameter {name}: {item!r} is outside '
-                                     f'{spec.low:g}..{spec.high:g}')
-        return values
-    if spec.low is not None and not (math.isfinite(value) and spec.low <= value <= spec.high):
-        raise ParameterError(
-            f'parameter {name}: {value!r} is outside {spec.low:g}..{spec.high:g}')
-    return value
-
-
 def _milliseconds(name, median_p99_max):
     return {f'{name} {label} (ms)': f'{1e3 * seconds:.3f}'
             for label, seconds in zip(('median', 'p99', 'max'), median_p99_max)}
@@ -199,10 +138,10 @@ class Estimate(NamedTuple):
 class KraftMasterNode(Node):
     """Publishes the hand controller's state and reflects task wrenches as joint torques."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, params_files=(), **kwargs):
         """Declare and check parameters, open the device and start the loop thread."""
         super().__init__('kraft_master_node', **kwargs)
-        self.config = self._declare_parameters()
+        self.config = declare_parameters(self, PARAMETERS, params_files)
         self.arm = self.config['arm']
         self.lengths = kinematics.LinkLengths(*self.config['link_lengths'])
         self.calibration = self._calibration()
@@ -277,18 +216,6 @@ class KraftMasterNode(Node):
             f'{"enabled" if self.force.enabled else "disabled (call enable_force)"}')
 
     # -- set-up --------------------------------------------------------------------------
-
-    def _declare_parameters(self):
-        values = {}
-        for name, spec in PARAMETERS.items():
-            try:
-                value = self.declare_parameter(
-                    name, spec.default, _descriptor(name, spec)).value
-            except (rclpy.exceptions.InvalidParameterTypeException,
-                    rclpy.exceptions.InvalidParameterValueException) as error:
-                raise ParameterError(f'parameter {name}: {error}') from None
-            values[name] = check_value(name, value)
-        return values
 
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
@@ -554,7 +481,7 @@ class KraftMasterNode(Node):
                 return SetParametersResult(
                     successful=False, reason=f'parameter {parameter.name} is read-only')
             try:
-                changes[parameter.name] = check_value(parameter.name, parameter.value)
+                changes[parameter.name] = check_value(PARAMETERS, parameter.name, parameter.value)
             except ParameterError as error:
                 return SetParametersResult(successful=False, reason=str(error))
         force_keys = {'force_scale', 'wrench_timeout', 'max_force', 'max_moment',
@@ -651,38 +578,12 @@ class TakenByLoopThread(CallbackGroup):
         """Nothing to release."""
 
 
-def run_node(make_node, program, args=None):
-    """Spin the node make_node() returns until Ctrl-C or SIGTERM; return the exit code."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = make_node()
-        # The set-up's objects live as long as the process: leave them out of garbage
-        # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
-        gc.freeze()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # A signal can shut the context down while the executor takes a message.
-        if rclpy.ok():
-            raise
-    except ParameterError as error:
-        print(f'{program}: {error}', file=sys.stderr)
-        exit_code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
-
-
 def main(args=None):
     """Run the driver until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
     # The loop thread must get the GIL soon after it wakes, not up to 5 ms (the default) later.
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    return run_node(KraftMasterNode, 'kraft_master_node', args)
+    return run_node(KraftMasterNode, 'kraft_master_node', __doc__.strip().splitlines()[0],
+                    PARAMETERS, args)
 
 
 if __name__ == '__main__':
