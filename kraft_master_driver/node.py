@@ -112,6 +112,9 @@ PARAMETERS = {
                          'random_walk or push.', choices=('hold', 'sweep', 'random_walk', 'push')),
     'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
                              low=0.0, high=100.0),
+    'allow_multiple_wrench_sources': Spec(
+        False, 'Accept wrenches while more than one publisher is matched on wrench; by '
+        'default torques are zero then, as two sources would interleave their forces.'),
 }
 
 
@@ -161,11 +164,12 @@ class KraftMasterNode(Node):
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        # Diagnostics go where diagnostic_updater publishes them, whatever the namespace.
         self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.diag_pub = (
             self.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
             for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
                                     (JointState, 'pots'), (TwistStamped, 'rate_command'),
-                                    (DiagnosticArray, 'diagnostics')))
+                                    (DiagnosticArray, '/diagnostics')))
         self._make_encoders()
         self._wrench_sub = self.create_subscription(
             WrenchStamped, 'wrench', self._on_wrench,
@@ -189,15 +193,18 @@ class KraftMasterNode(Node):
             torque_limit=tuple(self.config['torque_command_limit']),
             low_latency=self.config['low_latency'])
         self.device.open()
-        if not self.device.link_up:
-            self.get_logger().error(f'{self.device.last_error}; retrying with backoff')
-        elif self.device.stats['low_latency_failures']:
+        if self.device.link_up and self.device.stats['low_latency_failures']:
             self.get_logger().warning(self.device.last_error)
         self._warn_if_wire_limited()
 
         self.loop = LoopStatistics()
         self.loop_scheduler = 'normal'
         self._replies_missing = 0
+        # Failed opens at which a down link is reported next (the first is reported below).
+        self._link_report_at = 0 if self.device.link_up else 2
+        self._failed_opens_when_up = 0
+        self._wrench_sources = 0
+        self._wrenches_refused = False
         self._last_force_state = None
         self._errors_reported = {}
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
@@ -210,10 +217,15 @@ class KraftMasterNode(Node):
         # even when a signal ends the process before this constructor returns.
         self._thread = threading.Thread(target=self._run, name='kraft_master_loop')
         self._thread.start()
-        self.get_logger().info(
-            f'{self.arm} Kraft Master on {self.config["port"]} at '
-            f'{self.config["loop_rate_hz"]:g} Hz; force output '
-            f'{"enabled" if self.force.enabled else "disabled (call enable_force)"}')
+        force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
+        if self.device.link_up:
+            self.get_logger().info(
+                f'{self.arm} Kraft Master on {self.config["port"]} at '
+                f'{self.config["loop_rate_hz"]:g} Hz; force output {force}')
+        else:
+            self.get_logger().warning(
+                f'{self.arm} Kraft Master on {self.config["port"]}: {self._link_state()}; '
+                'retrying with backoff')
 
     # -- set-up --------------------------------------------------------------------------
 
@@ -302,6 +314,8 @@ class KraftMasterNode(Node):
                 else:
                     if self._replies_missing:
                         self._replies_missing = 0
+                        self._link_report_at = 0
+                        self._failed_opens_when_up = self.device.stats['failed_opens']
                         self.get_logger().info('the device answers again',
                                                throttle_duration_sec=1.0)
                     self.loop.round_trips.add(int(result.round_trip_s * 1e9))
@@ -360,11 +374,28 @@ class KraftMasterNode(Node):
         return sent
 
     def _take_wrenches(self):
-        """Hand every wrench that has arrived to _on_wrench, oldest first."""
-        subscription = self._wrench_sub
-        with subscription.handle:
-            while (taken := subscription.handle.take_message(WrenchStamped, True)) is not None:
-                self._on_wrench(taken[0])
+        """
+        Hand every wrench that has arrived to _on_wrench, oldest first.
+
+        While more than one publisher is matched (and allow_multiple_wrench_sources is false)
+        the wrenches are dropped and the force reflection holds none: zero torque.
+        """
+        handle = self._wrench_sub.handle
+        with handle:
+            sources = handle.get_publisher_count()
+            refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
+            while (taken := handle.take_message(WrenchStamped, True)) is not None:
+                if not refused:
+                    self._on_wrench(taken[0])
+        if refused:
+            self.force.clear()
+        if sources != self._wrench_sources:
+            self._wrench_sources = sources
+            if refused:
+                self.get_logger().warning(f'{self._several_sources()}: torques zeroed')
+            elif self._wrenches_refused:
+                self.get_logger().info(f'{sources} publisher(s) on wrench: wrenches accepted')
+            self._wrenches_refused = refused
 
     def _on_wrench(self, data):
         """Check one wrench (CDR bytes) and hand it to the force reflection."""
@@ -397,11 +428,29 @@ class KraftMasterNode(Node):
         """Say why this cycle got no pot frame; its torques, and the next cycle's, are zero."""
         self._replies_missing += 1
         if self.device.link_up:
-            reason = (f'no reply within reply_timeout {self.config["reply_timeout"]:g} s '
-                      f'({self._replies_missing} in a row)')
-        else:
-            reason = f'link down: {self.device.last_error}; reconnecting'
-        self.get_logger().warning(f'{reason}: torques zeroed', throttle_duration_sec=1.0)
+            self.get_logger().warning(
+                f'no reply within reply_timeout {self.config["reply_timeout"]:g} s '
+                f'({self._replies_missing} in a row): torques zeroed', throttle_duration_sec=1.0)
+            return
+        # Reported at the fault, then after 1, 2, 4, 8... failed reopens: less often as the
+        # backoff grows.
+        attempts = self.device.stats['failed_opens'] - self._failed_opens_when_up
+        if attempts >= self._link_report_at:
+            self._link_report_at = max(2 * attempts, 1)
+            self.get_logger().warning(
+                f'{self._link_state()} ({attempts} attempts): torques zero')
+
+    def _link_state(self):
+        """Return what the driver waits for and why while the link is down."""
+        reason = self.device.last_error.removeprefix(f'{self.device.port}: ')
+        if self.loop.frames:
+            return f'link down: {reason}; reconnecting'
+        return f'waiting for the device: {reason}'
+
+    def _several_sources(self):
+        """Say why wrenches are refused while several publishers are matched."""
+        return (f'{self._wrench_sources} publishers on {self._wrench_sub.topic_name}, only one '
+                'wrench source is allowed (allow_multiple_wrench_sources)')
 
     def _estimate(self, result):
         """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
@@ -526,16 +575,23 @@ class KraftMasterNode(Node):
             'loop scheduler': self.loop_scheduler,
             'force output': 'enabled' if self.force.enabled else 'disabled',
             'force state': self.output.state if self.output else 'no_state',
+            'wrench sources': str(self._wrench_sources),
             'calibration': self.calibration.source,
             'port': self.config['port'],
         }
         values.update({f'link {key}': str(value) for key, value in device.items()})
         values.update({f'force {key}': str(value) for key, value in self.force.counters.items()})
+        level, message = DiagnosticStatus.OK, 'running'
+        if not link_ok:
+            level, message = DiagnosticStatus.ERROR, self._link_state()
+        elif self._wrench_sources > 1 and not self.config['allow_multiple_wrench_sources']:
+            level, message = DiagnosticStatus.WARN, f'torques zero: {self._several_sources()}'
+            values['force state'] = 'several_sources'
+        port = self.config['port']
         status = DiagnosticStatus(
-            name=f'{self.get_name()}: {self.arm} Kraft Master',
-            hardware_id=str(self.config['port']),
-            level=DiagnosticStatus.OK if link_ok else DiagnosticStatus.ERROR,
-            message='running' if link_ok else f'link down: {self.device.last_error}',
+            name=f'{self.get_fully_qualified_name()}: {self.arm} Kraft Master',
+            hardware_id='simulated KMC 9100' if port == SIM_PORT else f'KMC 9100 on {port}',
+            level=level, message=message,
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
