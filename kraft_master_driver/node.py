@@ -225,7 +225,7 @@ class KraftMasterNode(Node):
         else:
             self.get_logger().warning(
                 f'{self.arm} Kraft Master on {self.config["port"]}: {self._link_state()}; '
-                'retrying with backoff')
+                'retrying')
 
     # -- set-up --------------------------------------------------------------------------
 

@@ -116,7 +116,10 @@ def _check_range(name, spec, value):
 def _as_double(parameter):
     """Return an INTEGER (array) parameter as the DOUBLE (array) of the same values."""
     value = parameter.value
-    value = [float(x) for x in value] if isinstance(value, (list, tuple)) else float(value)
+    if parameter.type_ == Parameter.Type.INTEGER_ARRAY:
+        value = [float(x) for x in value]  # a list, or an array.array from the service
+    else:
+        value = float(value)
     return Parameter(parameter.name, _INTEGER_TO_DOUBLE[parameter.type_], value)
 
 
@@ -151,7 +154,8 @@ def reject_unknown(node, table):
     for name in node._parameter_overrides:
         if name in table or name in STANDARD_PARAMETERS or name.startswith(STANDARD_PREFIXES):
             continue
-        nearest = difflib.get_close_matches(name, known_names(table), n=1, cutoff=0.6)
+        known = {known.lower(): known for known in known_names(table)}
+        nearest = [known[close] for close in difflib.get_close_matches(name.lower(), known, n=1)]
         hint = f'did you mean {nearest[0]}?' if nearest else 'see --help for the parameters'
         raise ParameterError(f'unknown parameter {name} for {node.get_fully_qualified_name()}'
                              f': {hint}')
