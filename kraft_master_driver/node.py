@@ -437,8 +437,8 @@ class KraftMasterNode(Node):
         attempts = self.device.stats['failed_opens'] - self._failed_opens_when_up
         if attempts >= self._link_report_at:
             self._link_report_at = max(2 * attempts, 1)
-            self.get_logger().warning(
-                f'{self._link_state()} ({attempts} attempts): torques zero')
+            tried = f' ({attempts} attempts)' if attempts else ''
+            self.get_logger().warning(f'{self._link_state()}{tried}: torques zero')
 
     def _link_state(self):
         """Return what the driver waits for and why while the link is down."""

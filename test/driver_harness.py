@@ -81,7 +81,7 @@ class RosClient:
 
     @property
     def wrench_pub(self):
-        """The wrench publisher, made on first use: the driver accepts only one source."""
+        """Return the wrench publisher, made on first use: the driver accepts one source."""
         if self._wrench_pub is None:
             self._wrench_pub = self.node.create_publisher(
                 WrenchStamped, 'wrench',
