@@ -224,7 +224,7 @@ def main():
     with tempfile.TemporaryDirectory(prefix='kraft_soak_') as workdir:
         print('building the package with colcon ...', flush=True)
         prefix = build(pathlib.Path(workdir))
-        session = faults.FaultSession(prefix, loop_rate_hz=RATE_HZ,
+        session = faults.FaultSession(prefix, faults.SEVERAL_SOURCES, loop_rate_hz=RATE_HZ,
                                       record=int(RECORD_S * RATE_HZ))
         try:
             soak = Soak(session, installed_env(prefix, session.domain_id), args.seed,

@@ -301,7 +301,7 @@ class KmcDevice:
             port.reset_input_buffer()
         except (OSError, serial.SerialException) as exc:
             self._counters['failed_opens'] += 1
-            self.last_error = f'{self.port}: cannot open: {exc}'
+            self.last_error = f'{self.port}: cannot open: {_open_failure(exc)}'
             self._next_attempt = time.monotonic() + self._backoff
             return False
         self._serial = port
@@ -403,6 +403,15 @@ class _DescriptorIo:
             raise serial.SerialException('the port reports data but returns none '
                                          '(device disconnected?)')
         return data
+
+
+def _open_failure(exc):
+    """Say in a few words why a port did not open (pyserial repeats the path and errno)."""
+    text = str(exc)
+    if 'lock' in text.lower():
+        return 'busy: another program holds its exclusive lock'
+    errno = getattr(exc, 'errno', None)
+    return os.strerror(errno) if isinstance(errno, int) else text
 
 
 def _positive(name, value):

@@ -5,10 +5,8 @@ kraft_master_node: the ROS 2 driver of one Kraft Master hand controller.
 
 One loop thread owns the device and the timing (wrenches in, torques out, pots in,
 kinematics, publish); the rclpy executor spins in the main thread for services, parameters
-and diagnostics. Only this module imports rclpy.
+and diagnostics. The core modules it uses import no rclpy.
 """
-import gc
-import math
 import operator
 import os
 import sys
@@ -22,18 +20,16 @@ from kraft_master_driver import cdr, kinematics
 from kraft_master_driver.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
+from kraft_master_driver.parameters import (
+    check_value, declare_parameters, ParameterError, run_node, Spec)
 from kraft_master_driver.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.teleop import (
     BASE_FRAME, ForceReflection, rate_command, STALE, WRIST_FRAME)
 import numpy as np
-from rcl_interfaces.msg import (
-    FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult)
-import rclpy
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import CallbackGroup
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-import rclpy.exceptions
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -43,18 +39,6 @@ SIM_PORT = 'sim'
 GIL_SWITCH_INTERVAL_S = 0.0002
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 POT_NAMES = [f'pot{i}' for i in range(1, 7)]
-
-
-class Spec(NamedTuple):
-    """One parameter: default, description with units, range, whether fixed at start-up."""
-
-    default: object
-    description: str
-    read_only: bool = True
-    low: float = None
-    high: float = None
-    choices: tuple = ()
-    length: int = None
 
 
 _NOMINAL = ArmCalibration.nominal('right').to_parameters()['calibration']
@@ -128,52 +112,10 @@ PARAMETERS = {
                          'random_walk or push.', choices=('hold', 'sweep', 'random_walk', 'push')),
     'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
                              low=0.0, high=100.0),
+    'allow_multiple_wrench_sources': Spec(
+        False, 'Accept wrenches while more than one publisher is matched on wrench; by '
+        'default torques are zero then, as two sources would interleave their forces.'),
 }
-
-
-class ParameterError(ValueError):
-    """A parameter value the driver cannot run with; the message names the parameter."""
-
-
-def _descriptor(name, spec):
-    descriptor = ParameterDescriptor(name=name, description=spec.description,
-                                     read_only=spec.read_only)
-    if spec.choices:
-        descriptor.additional_constraints = 'one of: ' + ', '.join(spec.choices)
-    if spec.length:
-        descriptor.additional_constraints = (
-            f'{spec.length} values, each within {spec.low:g}..{spec.high:g}')
-    elif spec.low is not None and isinstance(spec.default, int):
-        descriptor.integer_range = [IntegerRange(
-            from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    elif spec.low is not None:
-        descriptor.floating_point_range = [FloatingPointRange(
-            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    return descriptor
-
-
-def check_value(name, value):
-    """Return `value` if it suits parameter `name`, else raise ParameterError."""
-    spec = PARAMETERS[name]
-    if value is None:
-        raise ParameterError(f'parameter {name}: no value (an empty list has no type)')
-    if spec.choices and value not in spec.choices:
-        raise ParameterError(
-            f'parameter {name}: {value!r} is not one of {", ".join(spec.choices)}')
-    if spec.length is not None:
-        values = list(value)
-        if len(values) != spec.length:
-            raise ParameterError(
-                f'parameter {name}: expected {spec.length} values, got {len(values)}')
-        for item in values:
-            if not math.isfinite(item) or not spec.low <= item <= spec.high:
-                raise ParameterError(f'parameter {name}: {item!r} is outside '
-                                     f'{spec.low:g}..{spec.high:g}')
-        return values
-    if spec.low is not None and not (math.isfinite(value) and spec.low <= value <= spec.high):
-        raise ParameterError(
-            f'parameter {name}: {value!r} is outside {spec.low:g}..{spec.high:g}')
-    return value
 
 
 def _milliseconds(name, median_p99_max):
@@ -199,10 +141,10 @@ class Estimate(NamedTuple):
 class KraftMasterNode(Node):
     """Publishes the hand controller's state and reflects task wrenches as joint torques."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, params_files=(), **kwargs):
         """Declare and check parameters, open the device and start the loop thread."""
         super().__init__('kraft_master_node', **kwargs)
-        self.config = self._declare_parameters()
+        self.config = declare_parameters(self, PARAMETERS, params_files)
         self.arm = self.config['arm']
         self.lengths = kinematics.LinkLengths(*self.config['link_lengths'])
         self.calibration = self._calibration()
@@ -222,11 +164,12 @@ class KraftMasterNode(Node):
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        # Diagnostics go where diagnostic_updater publishes them, whatever the namespace.
         self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.diag_pub = (
             self.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
             for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
                                     (JointState, 'pots'), (TwistStamped, 'rate_command'),
-                                    (DiagnosticArray, 'diagnostics')))
+                                    (DiagnosticArray, '/diagnostics')))
         self._make_encoders()
         self._wrench_sub = self.create_subscription(
             WrenchStamped, 'wrench', self._on_wrench,
@@ -250,15 +193,18 @@ class KraftMasterNode(Node):
             torque_limit=tuple(self.config['torque_command_limit']),
             low_latency=self.config['low_latency'])
         self.device.open()
-        if not self.device.link_up:
-            self.get_logger().error(f'{self.device.last_error}; retrying with backoff')
-        elif self.device.stats['low_latency_failures']:
+        if self.device.link_up and self.device.stats['low_latency_failures']:
             self.get_logger().warning(self.device.last_error)
         self._warn_if_wire_limited()
 
         self.loop = LoopStatistics()
         self.loop_scheduler = 'normal'
         self._replies_missing = 0
+        # Failed opens at which a down link is reported next (the first is reported below).
+        self._link_report_at = 0 if self.device.link_up else 2
+        self._failed_opens_when_up = 0
+        self._wrench_sources = 0
+        self._wrenches_refused = False
         self._last_force_state = None
         self._errors_reported = {}
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
@@ -271,24 +217,17 @@ class KraftMasterNode(Node):
         # even when a signal ends the process before this constructor returns.
         self._thread = threading.Thread(target=self._run, name='kraft_master_loop')
         self._thread.start()
-        self.get_logger().info(
-            f'{self.arm} Kraft Master on {self.config["port"]} at '
-            f'{self.config["loop_rate_hz"]:g} Hz; force output '
-            f'{"enabled" if self.force.enabled else "disabled (call enable_force)"}')
+        force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
+        if self.device.link_up:
+            self.get_logger().info(
+                f'{self.arm} Kraft Master on {self.config["port"]} at '
+                f'{self.config["loop_rate_hz"]:g} Hz; force output {force}')
+        else:
+            self.get_logger().warning(
+                f'{self.arm} Kraft Master on {self.config["port"]}: {self._link_state()}; '
+                'retrying')
 
     # -- set-up --------------------------------------------------------------------------
-
-    def _declare_parameters(self):
-        values = {}
-        for name, spec in PARAMETERS.items():
-            try:
-                value = self.declare_parameter(
-                    name, spec.default, _descriptor(name, spec)).value
-            except (rclpy.exceptions.InvalidParameterTypeException,
-                    rclpy.exceptions.InvalidParameterValueException) as error:
-                raise ParameterError(f'parameter {name}: {error}') from None
-            values[name] = check_value(name, value)
-        return values
 
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
@@ -375,6 +314,8 @@ class KraftMasterNode(Node):
                 else:
                     if self._replies_missing:
                         self._replies_missing = 0
+                        self._link_report_at = 0
+                        self._failed_opens_when_up = self.device.stats['failed_opens']
                         self.get_logger().info('the device answers again',
                                                throttle_duration_sec=1.0)
                     self.loop.round_trips.add(int(result.round_trip_s * 1e9))
@@ -433,11 +374,28 @@ class KraftMasterNode(Node):
         return sent
 
     def _take_wrenches(self):
-        """Hand every wrench that has arrived to _on_wrench, oldest first."""
-        subscription = self._wrench_sub
-        with subscription.handle:
-            while (taken := subscription.handle.take_message(WrenchStamped, True)) is not None:
-                self._on_wrench(taken[0])
+        """
+        Hand every wrench that has arrived to _on_wrench, oldest first.
+
+        While more than one publisher is matched (and allow_multiple_wrench_sources is false)
+        the wrenches are dropped and the force reflection holds none: zero torque.
+        """
+        handle = self._wrench_sub.handle
+        with handle:
+            sources = handle.get_publisher_count()
+            refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
+            while (taken := handle.take_message(WrenchStamped, True)) is not None:
+                if not refused:
+                    self._on_wrench(taken[0])
+        if refused:
+            self.force.clear()
+        if sources != self._wrench_sources:
+            self._wrench_sources = sources
+            if refused:
+                self.get_logger().warning(f'{self._several_sources()}: torques zeroed')
+            elif self._wrenches_refused:
+                self.get_logger().info(f'{sources} publisher(s) on wrench: wrenches accepted')
+            self._wrenches_refused = refused
 
     def _on_wrench(self, data):
         """Check one wrench (CDR bytes) and hand it to the force reflection."""
@@ -470,11 +428,29 @@ class KraftMasterNode(Node):
         """Say why this cycle got no pot frame; its torques, and the next cycle's, are zero."""
         self._replies_missing += 1
         if self.device.link_up:
-            reason = (f'no reply within reply_timeout {self.config["reply_timeout"]:g} s '
-                      f'({self._replies_missing} in a row)')
-        else:
-            reason = f'link down: {self.device.last_error}; reconnecting'
-        self.get_logger().warning(f'{reason}: torques zeroed', throttle_duration_sec=1.0)
+            self.get_logger().warning(
+                f'no reply within reply_timeout {self.config["reply_timeout"]:g} s '
+                f'({self._replies_missing} in a row): torques zeroed', throttle_duration_sec=1.0)
+            return
+        # Reported at the fault, then after 1, 2, 4, 8... failed reopens: less often as the
+        # backoff grows.
+        attempts = self.device.stats['failed_opens'] - self._failed_opens_when_up
+        if attempts >= self._link_report_at:
+            self._link_report_at = max(2 * attempts, 1)
+            tried = f' ({attempts} attempts)' if attempts else ''
+            self.get_logger().warning(f'{self._link_state()}{tried}: torques zero')
+
+    def _link_state(self):
+        """Return what the driver waits for and why while the link is down."""
+        reason = self.device.last_error.removeprefix(f'{self.device.port}: ')
+        if self.loop.frames:
+            return f'link down: {reason}; reconnecting'
+        return f'waiting for the device: {reason}'
+
+    def _several_sources(self):
+        """Say why wrenches are refused while several publishers are matched."""
+        return (f'{self._wrench_sources} publishers on {self._wrench_sub.topic_name}, only one '
+                'wrench source is allowed (allow_multiple_wrench_sources)')
 
     def _estimate(self, result):
         """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
@@ -554,7 +530,7 @@ class KraftMasterNode(Node):
                 return SetParametersResult(
                     successful=False, reason=f'parameter {parameter.name} is read-only')
             try:
-                changes[parameter.name] = check_value(parameter.name, parameter.value)
+                changes[parameter.name] = check_value(PARAMETERS, parameter.name, parameter.value)
             except ParameterError as error:
                 return SetParametersResult(successful=False, reason=str(error))
         force_keys = {'force_scale', 'wrench_timeout', 'max_force', 'max_moment',
@@ -599,16 +575,23 @@ class KraftMasterNode(Node):
             'loop scheduler': self.loop_scheduler,
             'force output': 'enabled' if self.force.enabled else 'disabled',
             'force state': self.output.state if self.output else 'no_state',
+            'wrench sources': str(self._wrench_sources),
             'calibration': self.calibration.source,
             'port': self.config['port'],
         }
         values.update({f'link {key}': str(value) for key, value in device.items()})
         values.update({f'force {key}': str(value) for key, value in self.force.counters.items()})
+        level, message = DiagnosticStatus.OK, 'running'
+        if not link_ok:
+            level, message = DiagnosticStatus.ERROR, self._link_state()
+        elif self._wrench_sources > 1 and not self.config['allow_multiple_wrench_sources']:
+            level, message = DiagnosticStatus.WARN, f'torques zero: {self._several_sources()}'
+            values['force state'] = 'several_sources'
+        port = self.config['port']
         status = DiagnosticStatus(
-            name=f'{self.get_name()}: {self.arm} Kraft Master',
-            hardware_id=str(self.config['port']),
-            level=DiagnosticStatus.OK if link_ok else DiagnosticStatus.ERROR,
-            message='running' if link_ok else f'link down: {self.device.last_error}',
+            name=f'{self.get_fully_qualified_name()}: {self.arm} Kraft Master',
+            hardware_id='simulated KMC 9100' if port == SIM_PORT else f'KMC 9100 on {port}',
+            level=level, message=message,
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
@@ -651,38 +634,12 @@ class TakenByLoopThread(CallbackGroup):
         """Nothing to release."""
 
 
-def run_node(make_node, program, args=None):
-    """Spin the node make_node() returns until Ctrl-C or SIGTERM; return the exit code."""
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
-    try:
-        node = make_node()
-        # The set-up's objects live as long as the process: leave them out of garbage
-        # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
-        gc.freeze()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # A signal can shut the context down while the executor takes a message.
-        if rclpy.ok():
-            raise
-    except ParameterError as error:
-        print(f'{program}: {error}', file=sys.stderr)
-        exit_code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
-
-
 def main(args=None):
     """Run the driver until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
     # The loop thread must get the GIL soon after it wakes, not up to 5 ms (the default) later.
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    return run_node(KraftMasterNode, 'kraft_master_node', args)
+    return run_node(KraftMasterNode, 'kraft_master_node', __doc__.strip().splitlines()[0],
+                    PARAMETERS, args)
 
 
 if __name__ == '__main__':

@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 import numpy as np
 
 ARM_TOPICS = ('joint_states', 'pose', 'pots', 'wrench', 'diagnostics')
+DIAGNOSTICS = '/diagnostics'  # where the driver publishes them, whatever its namespace
 STATE_TOPICS = ('joint_states', 'pots', 'pose')  # one of them makes a namespace an arm
 PLOT_BUCKETS = 1500  # time series are drawn as min/max envelopes of this many buckets
 PATH_POINTS = 5000  # wrist paths are drawn with at most this many points
@@ -105,11 +106,19 @@ def _six(values):
     return out
 
 
-def _diagnostics(data):
-    """Return (receive time, {key: value}) of the driver's status in each message."""
+def _diagnostics(data, namespace):
+    """
+    Return (receive time, {key: value}) of the driver's status in each message.
+
+    The driver publishes on /diagnostics, its status named '<namespace>/<node>: ...'; bags of
+    earlier versions hold it on <namespace>/diagnostics.
+    """
     entries = []
     for log_time, message in zip(data.log_time.tolist(), data.messages):
         for status in message.status:
+            node, colon, _ = status.name.partition(': ')
+            if colon and node.startswith('/') and node.rpartition('/')[0] != namespace:
+                continue
             values = {pair.key: pair.value for pair in status.values}
             if any(key.startswith('link ') for key in values):
                 entries.append((log_time, values))
@@ -139,6 +148,8 @@ def assemble(namespace, data, topics, calibration=None):
     missing, notes, found = [], [], {}
     for name in ARM_TOPICS:
         topic = f'{namespace}/{name}'
+        if name == 'diagnostics' and DIAGNOSTICS in topics:
+            topic = DIAGNOSTICS
         expected = session.DRIVER_TOPICS[name]
         if topic not in topics:
             missing.append(topic)
@@ -174,7 +185,7 @@ def assemble(namespace, data, topics, calibration=None):
         wrench=(np.empty((0, 6)) if wrench is None or not len(wrench) else
                 np.hstack([wrench.fields['force'], wrench.fields['torque']])),
         wrench_frame='' if wrench is None else wrench.strings.get('frame_id', ''),
-        diagnostics=(_diagnostics(found['diagnostics'])
+        diagnostics=(_diagnostics(found['diagnostics'], namespace)
                      if 'diagnostics' in found else []),
         missing=missing, notes=notes)
 
@@ -193,7 +204,8 @@ def read_arms(bag, namespaces=None, calibration=None):
     if not found:
         raise session.SessionError(
             f'{bag}: no driver topics ({", ".join(STATE_TOPICS)}) in the bag')
-    data = session.read_topics(bag, [f'{ns}/{name}' for ns in found for name in ARM_TOPICS])
+    data = session.read_topics(
+        bag, [DIAGNOSTICS] + [f'{ns}/{name}' for ns in found for name in ARM_TOPICS])
     return [assemble(ns, data, topics, calibration) for ns in found]
 
 

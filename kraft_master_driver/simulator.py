@@ -777,7 +777,7 @@ def main(argv=None):
             print(f'port: {simulator.port}', flush=True)
             if simulator.priority_error:
                 print(f'kraft_master_sim: warning: {simulator.priority_error}', file=sys.stderr)
-            gc.freeze()  # no full garbage collection passes over the set-up (node.run_node)
+            gc.freeze()  # no full garbage collection passes over the set-up (parameters.run_node)
             while not stop.wait(0.5):
                 continue
             print(f'kraft_master_sim: stopped, {simulator.stats}', file=sys.stderr)

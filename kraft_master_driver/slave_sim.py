@@ -20,11 +20,9 @@ import time
 from typing import NamedTuple
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
-from kraft_master_driver.node import ParameterError, run_node
+from kraft_master_driver.parameters import (
+    declare_parameters, ParameterError, run_node, Spec)
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-import rclpy.exceptions
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -243,32 +241,31 @@ def integrate_quaternion(quaternion, angular_velocity, dt):
 
 _DEFAULT_LIMITS = SlaveLimits()
 
-# name -> (default, description with units)
 PARAMETERS = {
-    'mode': ('position', "'position': follow the master's pose; 'rate': its rate_command."),
-    'rate_hz': (500.0, 'Simulation and publishing rate (Hz).'),
-    'scale': (1.0, 'Slave motion per master motion (1); the reflected force is scale times '
-                   'the force on the slave.'),
-    'offset': ([0.0, 0.0, 0.0], 'Slave position when the master is at the centre (m).'),
-    'centre_at_start': (True, "The master's first pose is the centre; else use centre."),
-    'centre': ([0.0, 0.0, 0.0], 'Master wrist position mapped to offset (m), base frame.'),
-    'command_timeout': (0.1, 'Rate mode: an older rate_command stops the slave (s).'),
-    'max_velocity': (_DEFAULT_LIMITS.max_velocity, 'Slave speed limit (m/s).'),
-    'max_acceleration': (_DEFAULT_LIMITS.max_acceleration, 'Slave servo acceleration limit '
-                         '(m/s^2); times mass, the largest force it pushes with.'),
-    'mass': (_DEFAULT_LIMITS.mass, 'Moving mass of the slave (kg).'),
-    'position_gain': (_DEFAULT_LIMITS.position_gain, 'Position loop gain (1/s).'),
-    'velocity_gain': (_DEFAULT_LIMITS.velocity_gain, 'Velocity loop gain (1/s).'),
-    'wall.point': ([0.0, 0.0, -0.04], 'A point of the wall plane (m), slave frame.'),
-    'wall.normal': ([0.0, 0.0, 1.0], 'Wall normal, pointing into free space.'),
-    'wall.stiffness': (20000.0, 'Wall stiffness (N/m); 0 removes the wall.'),
-    'wall.damping': (100.0, 'Wall damping (N*s/m).'),
-    'box.centre': ([0.0, 0.12, 0.0], 'Centre of the soft box (m), slave frame.'),
-    'box.half_sizes': ([0.1, 0.06, 0.04], 'Half sizes of the soft box along x, y, z (m).'),
-    'box.stiffness': (200.0, 'Soft box stiffness (N/m); 0 removes the box.'),
-    'box.damping': (20.0, 'Soft box damping (N*s/m).'),
-    'base_frame': ('kraft_master_base', "frame_id of the wrench: the driver's base_frame."),
-    'slave_frame': ('slave_world', 'frame_id of slave_pose.'),
+    'mode': Spec('position', "'position': follow the master's pose; 'rate': its rate_command."),
+    'rate_hz': Spec(500.0, 'Simulation and publishing rate (Hz).'),
+    'scale': Spec(1.0, 'Slave motion per master motion (1); the reflected force is scale '
+                  'times the force on the slave.'),
+    'offset': Spec([0.0, 0.0, 0.0], 'Slave position when the master is at the centre (m).'),
+    'centre_at_start': Spec(True, "The master's first pose is the centre; else use centre."),
+    'centre': Spec([0.0, 0.0, 0.0], 'Master wrist position mapped to offset (m), base frame.'),
+    'command_timeout': Spec(0.1, 'Rate mode: an older rate_command stops the slave (s).'),
+    'max_velocity': Spec(_DEFAULT_LIMITS.max_velocity, 'Slave speed limit (m/s).'),
+    'max_acceleration': Spec(_DEFAULT_LIMITS.max_acceleration, 'Slave servo acceleration '
+                             'limit (m/s^2); times mass, the largest force it pushes with.'),
+    'mass': Spec(_DEFAULT_LIMITS.mass, 'Moving mass of the slave (kg).'),
+    'position_gain': Spec(_DEFAULT_LIMITS.position_gain, 'Position loop gain (1/s).'),
+    'velocity_gain': Spec(_DEFAULT_LIMITS.velocity_gain, 'Velocity loop gain (1/s).'),
+    'wall.point': Spec([0.0, 0.0, -0.04], 'A point of the wall plane (m), slave frame.'),
+    'wall.normal': Spec([0.0, 0.0, 1.0], 'Wall normal, pointing into free space.'),
+    'wall.stiffness': Spec(20000.0, 'Wall stiffness (N/m); 0 removes the wall.'),
+    'wall.damping': Spec(100.0, 'Wall damping (N*s/m).'),
+    'box.centre': Spec([0.0, 0.12, 0.0], 'Centre of the soft box (m), slave frame.'),
+    'box.half_sizes': Spec([0.1, 0.06, 0.04], 'Half sizes of the soft box along x, y, z (m).'),
+    'box.stiffness': Spec(200.0, 'Soft box stiffness (N/m); 0 removes the box.'),
+    'box.damping': Spec(20.0, 'Soft box damping (N*s/m).'),
+    'base_frame': Spec('kraft_master_base', "frame_id of the wrench: the driver's base_frame."),
+    'slave_frame': Spec('slave_world', 'frame_id of slave_pose.'),
 }
 
 
@@ -281,10 +278,10 @@ def _stamp(msg, time_msg, frame_id):
 class SlaveSimNode(Node):
     """Runs a SlaveArm against the master's pose or rate command and reflects its contacts."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, params_files=(), **kwargs):
         """Declare and check the parameters, then start the fixed-rate simulation timer."""
         super().__init__('kraft_master_slave_sim', **kwargs)
-        config = self._declare_parameters()
+        config = declare_parameters(self, PARAMETERS, params_files)
         try:
             if config['mode'] not in MODES:
                 raise ValueError(f'mode must be one of {", ".join(MODES)}, '
@@ -326,17 +323,6 @@ class SlaveSimNode(Node):
             f'slave in {self.mode} mode at {rate_hz:g} Hz; wall '
             f'{"on" if self.arm.wall else "off"}, soft box {"on" if self.arm.box else "off"}')
 
-    def _declare_parameters(self):
-        values = {}
-        for name, (default, description) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(name=name, description=description, read_only=True)
-            try:
-                values[name] = self.declare_parameter(name, default, descriptor).value
-            except (rclpy.exceptions.InvalidParameterTypeException,
-                    rclpy.exceptions.InvalidParameterValueException) as error:
-                raise ParameterError(f'parameter {name}: {error}') from None
-        return values
-
     def _on_pose(self, msg):
         p, q = msg.pose.position, msg.pose.orientation
         self.target = self.map.target((p.x, p.y, p.z))
@@ -376,7 +362,8 @@ class SlaveSimNode(Node):
 
 def main(args=None):
     """Run the slave until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
-    return run_node(SlaveSimNode, 'kraft_master_slave_sim', args)
+    return run_node(SlaveSimNode, 'kraft_master_slave_sim', __doc__.strip().splitlines()[0],
+                    PARAMETERS, args)
 
 
 if __name__ == '__main__':

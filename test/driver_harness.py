@@ -79,9 +79,17 @@ class RosClient:
             self._record(msg_type, topic, history, reliable)
             for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
                                     (JointState, 'pots')))
-        self.wrench_pub = self.node.create_publisher(
-            WrenchStamped, 'wrench', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self._wrench_pub = None
         self.enable_client = self.node.create_client(SetBool, 'enable_force')
+
+    @property
+    def wrench_pub(self):
+        """Return the wrench publisher, made on first use: the driver accepts one source."""
+        if self._wrench_pub is None:
+            self._wrench_pub = self.node.create_publisher(
+                WrenchStamped, 'wrench',
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        return self._wrench_pub
 
     def _record(self, msg_type, topic, history, qos):
         messages = collections.deque(maxlen=history)

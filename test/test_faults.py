@@ -83,6 +83,8 @@ DECODER_ERRORS = ('link bad_crc', 'link garbage_bytes', 'link truncated', 'link 
 CYCLE_COUNTERS = ('link timeouts', 'link stale_replies', 'force watchdog_trips', 'late cycles',
                   'missed cycles')
 
+SEVERAL_SOURCES = (('allow_multiple_wrench_sources', 'true'),)
+
 FAULT_TABLE = []
 SESSION_NUMBERS = itertools.count()
 first_item = operator.itemgetter(0)
@@ -291,18 +293,21 @@ class Diagnostics(NamedTuple):
         return int(self.values[key])
 
 
-def watch_diagnostics(node, topic):
-    """Subscribe `node` to DiagnosticArray `topic`; return the list its statuses go into."""
+def watch_diagnostics(node, driver):
+    """Subscribe `node` to /diagnostics; return the list the statuses of node `driver` go into."""
     received = []
+    prefix = f'{driver}: '
 
     def on_diagnostics(msg):
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         for status in msg.status:
+            if not status.name.startswith(prefix):
+                continue
             level = status.level
             received.append(Diagnostics(
                 stamp, level[0] if isinstance(level, bytes) else int(level), status.message,
                 {kv.key: kv.value for kv in status.values}))
-    node.create_subscription(DiagnosticArray, topic, on_diagnostics, 10)
+    node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
     return received
 
 
@@ -326,7 +331,7 @@ class FaultSession:
         self.client.node.create_subscription(
             JointState, 'joint_states', self._count_state,
             QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE))
-        self.diagnostics = self.watch('diagnostics')
+        self.diagnostics = self.watch(self.namespace)
         self.driver = Driver(prefix, self.domain_id, [
             ('port', self.port), ('loop_rate_hz', loop_rate_hz),
             ('force_enabled_at_start', 'true'), *parameters], namespace=self.namespace)
@@ -357,9 +362,9 @@ class FaultSession:
     def _count_state(self, _msg):
         self.states += 1
 
-    def watch(self, topic):
-        """Collect the driver's DiagnosticStatus messages on `topic` into a list."""
-        return watch_diagnostics(self.client.node, topic)
+    def watch(self, namespace):
+        """Collect the DiagnosticStatus messages of the driver in `namespace` into a list."""
+        return watch_diagnostics(self.client.node, f'{namespace}/kraft_master_node')
 
     def diagnostics_after(self, time_ns, received=None):
         """Wait for the first diagnostics stamped at or after `time_ns` and return it."""
@@ -761,8 +766,14 @@ def inject_flood(session):
 
 @pytest.fixture(scope='class')
 def wrench_session(install_prefix):
-    """One driver session shared by the wrench input rows; each row restores the stream."""
-    session = FaultSession(install_prefix)
+    """
+    One driver session shared by the wrench input rows; each row restores the stream.
+
+    The killed-source row runs a second source beside the steady one, and a SIGKILLed
+    publisher stays matched until DDS notices it is gone: these rows allow several sources
+    (test_node.py tests the one-source rule).
+    """
+    session = FaultSession(install_prefix, SEVERAL_SOURCES)
     yield session
     session.close()
 
@@ -1121,7 +1132,7 @@ def test_second_driver_on_the_same_port_retries_and_leaves_the_first_alone(insta
     second = None
     try:
         second_namespace = f'{session.namespace}_second'
-        second_diagnostics = session.watch(f'{second_namespace}/diagnostics')
+        second_diagnostics = session.watch(second_namespace)
         session.wait_torque()
         before = session.diagnostics_after(time.time_ns())
         device_errors = session.simulator.stats['decode_errors']

@@ -8,24 +8,51 @@ from kraft_master_driver.node import PARAMETERS
 import pytest
 
 README = (REPO / 'README.md').read_text()
-ROWS = {m.group(1): m.group(2) for m in re.finditer(
-    r'^\| `([a-z_.]+)` \| [a-z\[\]0-9]+ \| ([^|]+) \|', README, re.MULTILINE)}
+ROWS = {m.group(1): m.groups()[1:] for m in re.finditer(
+    r'^\| `([a-z_.]+)` \| ([a-z\[\]0-9]+) \| ([^|]+) \| ([^|]*) \|', README, re.MULTILINE)}
+
+
+def number(value):
+    """Return a number as the table writes it: integers as integers (1000000, not 1e+06)."""
+    if isinstance(value, int) or float(value).is_integer() and abs(value) < 1e15:
+        return str(int(value))
+    return f'{value:g}'
 
 
 def readme_default(value):
     if isinstance(value, bool):
         return str(value).lower()
     if isinstance(value, list):
-        return '`[' + ', '.join(f'{x:g}' for x in value) + ']`'
+        return '`[' + ', '.join(number(x) for x in value) + ']`'
     if isinstance(value, str):
         return f'`{value}`' if value else "`''`"
-    return f'`{value:g}`'
+    return f'`{number(value)}`'
+
+
+def readme_type(default):
+    kind = type(default[0]) if isinstance(default, list) else type(default)
+    name = {bool: 'bool', int: 'int', float: 'double', str: 'string'}[kind]
+    return f'{name}[{len(default)}]' if isinstance(default, list) else name
+
+
+def readme_range(spec):
+    if spec.choices:
+        return ', '.join(spec.choices)
+    return '' if spec.low is None else f'{number(spec.low)} .. {number(spec.high)}'
 
 
 @pytest.mark.parametrize('name', PARAMETERS)
 def test_every_parameter_is_in_the_readme_table_with_its_default(name):
     assert name in ROWS, f'README.md has no row for parameter {name}'
-    assert ROWS[name].strip() == readme_default(PARAMETERS[name].default)
+    spec = PARAMETERS[name]
+    kind, default, bounds = (cell.strip() for cell in ROWS[name])
+    assert (kind, default, bounds) == (
+        readme_type(spec.default), readme_default(spec.default), readme_range(spec))
+
+
+def test_integers_show_as_integers():
+    assert [cell.strip() for cell in ROWS['baud'][1:]] == ['`1000000`', '1200 .. 12000000']
+    assert 'e+' not in ''.join(''.join(cells) for cells in ROWS.values())
 
 
 def test_the_readme_table_has_no_stale_parameter():

@@ -3,6 +3,7 @@
 """Reading recorded sessions back (session.py) and kraft_master_report on synthetic bags."""
 import csv
 import math
+from types import SimpleNamespace
 
 from kraft_master_driver import kinematics, report, session
 from kraft_master_driver.calibration import ArmCalibration
@@ -371,3 +372,18 @@ def test_session_without_samples_still_reports(tmp_path, capsys):
     assert '/left (left arm): 0 samples' in capsys.readouterr().out
     names, stamps, rows = read_csv(tmp_path / 'empty_left_samples.csv')
     assert names[0] == 'stamp_ns' and names[-1] == 'recal_qw' and len(stamps) == 0
+
+
+def test_each_arm_takes_its_own_status_from_the_shared_diagnostics_topic():
+    """The drivers publish on /diagnostics, their statuses named by the node's full name."""
+    def status(name, rate):
+        return SimpleNamespace(name=name, values=[SimpleNamespace(key='link timeouts', value='0'),
+                                                  SimpleNamespace(key='loop rate (Hz)',
+                                                                  value=rate)])
+    message = SimpleNamespace(status=[status('/left/kraft_master_node: left Kraft Master', '1'),
+                                      status('/right/kraft_master_node: right Kraft Master', '2'),
+                                      status('/kraft_master_node: right Kraft Master', '3')])
+    data = SimpleNamespace(log_time=np.array([7]), messages=[message])
+    for namespace, rate in (('/left', '1'), ('/right', '2'), ('', '3')):
+        ((time_ns, values),) = report._diagnostics(data, namespace)
+        assert (time_ns, values['loop rate (Hz)']) == (7, rate)
