@@ -11,7 +11,9 @@ from kraft_master_driver import kinematics
 from kraft_master_driver.node import PARAMETERS
 from kraft_master_driver.simulator import OPERATORS
 from kraft_master_driver.urdf_model import driver_names, main, package_urdf
+import numpy as np
 import pytest
+import rclpy
 import yaml
 import yourdfpy
 
@@ -28,19 +30,24 @@ def readme_recipe():
     for line in block.replace('\\\n', ' ').splitlines():
         tokens = shlex.split(line)
         namespace = tokens[tokens.index('-r') + 1].removeprefix('__ns:=/')
-        driver, urdf_arguments = recipe.get(namespace, (None, None))
+        driver, publisher = recipe.get(namespace, (None, None))
         if tokens[:4] == ['ros2', 'run', PACKAGE, 'kraft_master_node']:
             driver = tokens
         else:
             assert tokens[:4] == ['ros2', 'run', 'robot_state_publisher',
                                   'robot_state_publisher'], line
-            (description,) = [t for t in tokens if t.startswith('robot_description:=')]
-            command = re.fullmatch(r'robot_description:=\$\((.*)\)', description).group(1)
-            words = command.split()
-            assert words[:4] == ['ros2', 'run', PACKAGE, 'kraft_master_urdf'], command
-            urdf_arguments = words[4:]
-        recipe[namespace] = driver, urdf_arguments
+            publisher = tokens
+        recipe[namespace] = driver, publisher
     return recipe
+
+
+def urdf_arguments(publisher):
+    """Return the kraft_master_urdf arguments of a robot_state_publisher command line."""
+    (description,) = [t for t in publisher if t.startswith('robot_description:=')]
+    command = re.fullmatch(r'robot_description:=\$\((.*)\)', description).group(1)
+    words = command.split()
+    assert words[:4] == ['ros2', 'run', PACKAGE, 'kraft_master_urdf'], command
+    return words[4:]
 
 
 def driver_parameters(tokens):
@@ -68,18 +75,18 @@ RECIPE = readme_recipe()
 
 def test_the_recipe_runs_each_arm_with_its_driver_and_its_robot_state_publisher():
     assert set(RECIPE) == set(kinematics.ARMS)
-    for arm, (driver, urdf_arguments) in RECIPE.items():
-        assert driver and urdf_arguments == ['--arm', arm], arm
+    for arm, (driver, publisher) in RECIPE.items():
+        assert driver and urdf_arguments(publisher) == ['--arm', arm], arm
         assert yaml.safe_load(params_file(driver).read_text())['/**']['ros__parameters'][
             'arm'] == arm
 
 
 @pytest.mark.parametrize('arm', kinematics.ARMS)
 def test_recipe_driver_names_are_the_urdf_names_and_the_launch_files(arm):
-    driver, urdf_arguments = RECIPE[arm]
+    driver, publisher = RECIPE[arm]
     names = driver_parameters(driver)
     assert {key: names[key] for key in driver_names(arm)} == driver_names(arm)
-    text, robot = urdf_from_tool(urdf_arguments)
+    text, robot = urdf_from_tool(urdf_arguments(publisher))
     assert text == package_urdf(arm) == (REPO / 'urdf' / f'kraft_master_{arm}.urdf').read_text()
     assert robot.actuated_joint_names == [
         names['joint_prefix'] + name for name in kinematics.JOINT_NAMES]
@@ -99,7 +106,7 @@ def test_two_recipe_drivers_publish_the_urdf_names_and_take_wrenches_in_its_fram
                                          namespace=f'/{arm}', params_file=params_file(tokens)))
             clients.append(RosClient(domain_id, namespace=f'/{arm}'))
         for arm, client, driver in zip(RECIPE, clients, drivers):
-            _, robot = urdf_from_tool(RECIPE[arm][1])
+            _, robot = urdf_from_tool(urdf_arguments(RECIPE[arm][1]))
             try:
                 client.wait_connected()
             except AssertionError:
@@ -117,6 +124,35 @@ def test_two_recipe_drivers_publish_the_urdf_names_and_take_wrenches_in_its_fram
             client.close()
         for driver in drivers:
             driver.kill()
+
+
+@pytest.mark.parametrize('arm', kinematics.ARMS)
+def test_recipe_robot_description_survives_rcl_parsing_the_command_line(arm):
+    """rcl reads `-p name:=value` as YAML: the URDF must come through as the same model."""
+    publisher = RECIPE[arm][1]
+    text, robot = urdf_from_tool(urdf_arguments(publisher))
+    arguments = [t if not t.startswith('robot_description:=') else 'robot_description:=' + text
+                 for t in publisher[publisher.index('--ros-args'):]]
+    context = rclpy.Context()
+    rclpy.init(args=['robot_state_publisher', *arguments], context=context,
+               domain_id=next_domain_id())
+    try:
+        node = rclpy.create_node('robot_state_publisher', context=context)
+        assert node.get_namespace() == f'/{arm}'
+        value = node.declare_parameter('robot_description', '').value
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    received = yourdfpy.URDF.load(io.StringIO(value))
+    assert received.actuated_joint_names == robot.actuated_joint_names
+    assert set(received.link_map) == set(robot.link_map)
+    theta = np.radians([10.0, 60.0, -90.0, 20.0, 15.0, -30.0])
+    for model in (robot, received):
+        model.update_cfg(dict(zip(model.actuated_joint_names, theta)))
+    names = driver_names(arm)
+    np.testing.assert_allclose(
+        received.get_transform(names['wrist_frame'], names['base_frame']),
+        robot.get_transform(names['wrist_frame'], names['base_frame']), atol=1e-12)
 
 
 def test_rviz_config_shows_the_right_arm_by_the_conventions_names(install_prefix):
