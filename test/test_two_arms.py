@@ -128,7 +128,7 @@ def test_two_recipe_drivers_publish_the_urdf_names_and_take_wrenches_in_its_fram
 
 @pytest.mark.parametrize('arm', kinematics.ARMS)
 def test_recipe_robot_description_survives_rcl_parsing_the_command_line(arm):
-    """rcl reads `-p name:=value` as YAML: the URDF must come through as the same model."""
+    """The URDF comes through rcl, which reads `-p name:=value` as YAML, as the same model."""
     publisher = RECIPE[arm][1]
     text, robot = urdf_from_tool(urdf_arguments(publisher))
     arguments = [t if not t.startswith('robot_description:=') else 'robot_description:=' + text
