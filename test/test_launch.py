@@ -3,6 +3,8 @@
 """The launch files: arguments, the two-arm names, checks before any process (needs launch_ros)."""
 import importlib.util
 import os
+import re
+import shlex
 
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 from driver_harness import PACKAGE, REPO
@@ -93,6 +95,29 @@ def test_launch_description_declares_its_arguments(installed_share, file_name, a
     assert isinstance(description, launch.LaunchDescription)
     assert arguments | {operator} <= set(declared(description))
     assert list(declared(description)[operator].choices) == list(OPERATORS)
+
+
+def readme_launch_commands():
+    """Return (launch file, {argument: value}) of each `ros2 launch` line of the README."""
+    readme = (REPO / 'README.md').read_text().replace('\\\n', ' ')
+    commands = []
+    for block in re.findall(r'```\n(.*?)```', readme, re.DOTALL):
+        for line in block.splitlines():
+            if line.startswith(f'ros2 launch {PACKAGE} '):
+                tokens = shlex.split(line, comments=True)
+                commands.append((tokens[3], dict(t.split(':=', 1) for t in tokens[4:])))
+    return commands
+
+
+def test_readme_launch_commands_use_declared_arguments_and_choices(installed_share):
+    commands = readme_launch_commands()
+    assert {file_name for file_name, _ in commands} == {
+        'kraft_master.launch.py', 'teleop_demo.launch.py'}
+    for file_name, arguments in commands:
+        declarations = declared(load(file_name).generate_launch_description())
+        for name, value in arguments.items():
+            assert name in declarations, f'{file_name} has no argument {name}'
+            assert not declarations[name].choices or value in declarations[name].choices
 
 
 def test_each_driver_gets_its_params_file_and_the_arms_names(installed_share):
