@@ -9,11 +9,15 @@ The driver runs the built-in simulated hand controller (port sim), moved by a sc
 hand, with force output on. The slave (kraft_master_slave_sim) follows the master's pose
 (mode position) or its rate command (mode rate; the driver's centre is then set 3 s after
 start) in an environment with a stiff wall and a soft box, and its contact forces come back as
-the master's wrench. Everything runs in the arm's namespace, as kraft_master.launch.py does.
+the master's wrench. Everything runs in the arm's namespace with the arm's prefixed frame names,
+as kraft_master.launch.py does; its checks run before any process starts.
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
+from kraft_master_driver.kinematics import ARMS
+from kraft_master_driver.simulator import OPERATORS
+from kraft_master_driver.urdf_model import driver_names
 from launch import LaunchDescription
 from launch.actions import (
     DeclareLaunchArgument, ExecuteProcess, IncludeLaunchDescription, OpaqueFunction, TimerAction)
@@ -41,7 +45,7 @@ def _actions(context):
             }.items()),
         Node(package=PACKAGE, executable='kraft_master_slave_sim', namespace=arm,
              output='screen',
-             parameters=[{'mode': mode, 'base_frame': f'{arm}/kraft_master_base'}]),
+             parameters=[{'mode': mode, 'base_frame': driver_names(arm)['base_frame']}]),
     ]
     if mode == 'rate':
         actions.append(TimerAction(period=CENTRE_DELAY, actions=[ExecuteProcess(
@@ -53,12 +57,11 @@ def _actions(context):
 def generate_launch_description():
     """Declare the arguments; the actions are made once their values are known."""
     return LaunchDescription([
-        DeclareLaunchArgument('arm', default_value='right', choices=['right', 'left'],
+        DeclareLaunchArgument('arm', default_value='right', choices=list(ARMS),
                               description='Which arm to simulate.'),
         DeclareLaunchArgument('mode', default_value='position', choices=['position', 'rate'],
                               description='Slave follows the pose (position) or rate_command.'),
-        DeclareLaunchArgument('operator', default_value='sweep',
-                              choices=['hold', 'sweep', 'random_walk'],
+        DeclareLaunchArgument('operator', default_value='sweep', choices=list(OPERATORS),
                               description='What the simulated operator hand does.'),
         DeclareLaunchArgument('rsp', default_value='false', choices=['true', 'false'],
                               description='Also run robot_state_publisher with the URDF.'),
