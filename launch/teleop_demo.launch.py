@@ -41,7 +41,8 @@ def _actions(context):
             }.items()),
         Node(package=PACKAGE, executable='kraft_master_slave_sim', namespace=arm,
              output='screen',
-             parameters=[{'mode': mode, 'base_frame': f'{arm}/kraft_master_base'}]),
+             parameters=[{'mode': mode, 'arm': arm,
+                          'base_frame': f'{arm}/kraft_master_base'}]),
     ]
     if mode == 'rate':
         actions.append(TimerAction(period=CENTRE_DELAY, actions=[ExecuteProcess(
