@@ -15,7 +15,7 @@ import subprocess
 import sys
 import threading
 
-from driver_harness import next_domain_id, REPO
+from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver import kinematics
 from kraft_master_driver.node import PARAMETERS as DRIVER_PARAMETERS
@@ -214,3 +214,14 @@ def test_the_demo_shows_contact_and_reflected_force_and_leaves_nothing(start_dem
             matched += 1
     assert checked >= 100
     assert matched >= 0.95 * checked, f'{matched} of {checked} torques match a wrench sent'
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_to_the_demo_stops_every_process(start_demo, sig):
+    demo = start_demo(600.0)
+    wait_for(lambda: any(' s | loop ' in line for line in demo.lines), timeout=120.0)
+    demo.process.send_signal(sig)
+    code, output = demo.finish(timeout=60.0)
+    assert code == 0, output
+    assert not session_processes(demo.process.pid), 'a process of the demo was left behind'
+    assert "The processes' messages: " in output.splitlines()[-1]
