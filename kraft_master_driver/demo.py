@@ -20,9 +20,16 @@ import sys
 import tempfile
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.slave_sim import PARAMETERS as SLAVE_PARAMETERS
+import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
 SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulator', '--operator', 'push']
@@ -66,16 +73,7 @@ class Readout:
 
     def __init__(self):
         """Subscribe to the driver's state, the slave's, and the diagnostics."""
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import PoseStamped, WrenchStamped
-        import rclpy
-        from rclpy.event_handler import SubscriptionEventCallbacks
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from rclpy.signals import SignalHandlerOptions
-        from sensor_msgs.msg import JointState
-
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-        self.rclpy = rclpy
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C is ours
         self.node = rclpy.create_node('kraft_master_demo')
         self.latest = {}
         self.driver_status = {}
@@ -136,7 +134,7 @@ class Readout:
     def close(self):
         """Leave ROS."""
         self.node.destroy_node()
-        self.rclpy.try_shutdown()
+        rclpy.try_shutdown()
 
 
 class ProcessLog:
