@@ -168,6 +168,7 @@ class Screen:
         self.out = out
         self.interactive = out.isatty()
         self._shown = 0
+        self._last = None
 
     def show(self, log_lines, readout):
         """Write the new log lines, then the readout (in place of the last one on a terminal)."""
@@ -177,8 +178,11 @@ class Screen:
             if self._shown:
                 self.out.write(f'\x1b[{self._shown}F\x1b[J')  # back over the last readout
             self._shown = len(readout)
-        elif readout:
-            readout = [''] + readout
+        elif readout == self._last:
+            readout = []  # piped, a readout that says nothing new is not repeated
+        else:
+            self._last = readout
+            readout = [''] + readout if readout else []
         self.out.write(''.join(line + '\n' for line in log_lines + readout))
         self.out.flush()
 
