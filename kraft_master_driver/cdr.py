@@ -1,13 +1,14 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-The CDR bytes (XCDR1, as rmw_fastrtps sends them) of the messages the loop thread handles.
+The CDR bytes (XCDR1, as rmw_fastrtps sends them) of the messages the loops handle.
 
 rclpy converts a message object field by field on every publish and builds a tree of Python
 objects on every take: about 40 us more per JointState published and 70 us more per
 WrenchStamped taken than packing and unpacking the bytes here (measured on the 2-core test
-machine). The loop therefore publishes bytes (Publisher.publish accepts them) and takes the
-wrench raw. No rclpy here; the tests check every encoding against rclpy and Fast DDS.
+machine). The driver's loop therefore publishes bytes (Publisher.publish accepts them) and
+takes the wrench raw; the simulated slave's loop does the same with its pose and wrench. No
+rclpy here; the tests check every encoding against rclpy and Fast DDS.
 
 Layout: a 4-byte encapsulation header (0x00 0x01: little endian, all this module reads or
 writes), then the fields in order, each aligned to its own size counted from the end of that
@@ -18,8 +19,7 @@ import struct
 
 LITTLE_ENDIAN_HEADER = b'\x00\x01\x00\x00'
 _STAMP = struct.Struct('<iI')
-_WRENCH_HEADER = struct.Struct('<iII')
-_WRENCH = struct.Struct('<6d')
+_HEADER = struct.Struct('<iII')  # stamp, then the frame_id's length
 
 
 def _string(text):
@@ -103,23 +103,35 @@ class StampedDoublesEncoder:
                          self._tail.pack(*values)))
 
 
-def decode_wrench_stamped(data):
-    """
-    Return (sec, nanosec, frame_id, (fx, fy, fz, mx, my, mz)) of geometry_msgs/WrenchStamped.
+class StampedDoublesDecoder:
+    """Reads a message of a Header and then only float64 fields (see StampedDoublesEncoder)."""
 
-    Raise ValueError on bytes that are not such a message: another encapsulation (big endian
-    or XCDR2), truncated, a frame_id without its NUL or not UTF-8.
-    """
-    if data[:2] != LITTLE_ENDIAN_HEADER[:2]:
-        raise ValueError(f'unsupported CDR encapsulation {bytes(data[:4]).hex()}')
-    body = memoryview(data)[4:]
-    try:
-        sec, nanosec, length = _WRENCH_HEADER.unpack_from(body, 0)
-        end = 12 + length
-        if length == 0 or end > len(body) or body[end - 1] != 0:
-            raise ValueError(f'bad frame_id length {length}')
-        frame_id = bytes(body[12:end - 1]).decode()
-        wrench = _WRENCH.unpack_from(body, end + _padding(end, 8))
-    except (struct.error, UnicodeDecodeError) as error:
-        raise ValueError(f'not a WrenchStamped: {error}') from None
-    return sec, nanosec, frame_id, wrench
+    def __init__(self, name, count):
+        """Name: the message type, for errors; count: its float64 fields after the header."""
+        self._name = name
+        self._values = struct.Struct(f'<{count}d')
+
+    def decode(self, data):
+        """
+        Return (sec, nanosec, frame_id, values) of the message's CDR bytes.
+
+        Raise ValueError on bytes that are not such a message: another encapsulation (big
+        endian or XCDR2), truncated, a frame_id without its NUL or not UTF-8.
+        """
+        if data[:2] != LITTLE_ENDIAN_HEADER[:2]:
+            raise ValueError(f'unsupported CDR encapsulation {bytes(data[:4]).hex()}')
+        body = memoryview(data)[4:]
+        try:
+            sec, nanosec, length = _HEADER.unpack_from(body, 0)
+            end = 12 + length
+            if length == 0 or end > len(body) or body[end - 1] != 0:
+                raise ValueError(f'bad frame_id length {length}')
+            frame_id = bytes(body[12:end - 1]).decode()
+            values = self._values.unpack_from(body, end + _padding(end, 8))
+        except (struct.error, UnicodeDecodeError) as error:
+            raise ValueError(f'not a {self._name}: {error}') from None
+        return sec, nanosec, frame_id, values
+
+
+# (sec, nanosec, frame_id, (fx, fy, fz, mx, my, mz)) of geometry_msgs/WrenchStamped bytes.
+decode_wrench_stamped = StampedDoublesDecoder('WrenchStamped', 6).decode

@@ -4,25 +4,42 @@
 kraft_master_demo: the paper's worked examples, then simulated teleoperation, live.
 
 The driver runs against the simulated hand controller (its own process, on a real
-pseudo-terminal), whose simulated operator pushes the wrist down and back; the simulated
-slave arm follows the master's pose, meets a stiff wall 40 mm down, and its contact wrench
-is reflected to the master as joint torques. A few refreshed lines show what happens.
+pseudo-terminal), whose simulated operator takes hold when the driver starts and pushes the
+wrist 80 mm down and back, 2 s each way; the simulated slave arm follows the master's pose
+about the middle of its workspace, meets a stiff wall 40 mm down, and its contact wrench is
+reflected to the master as joint torques. A few refreshed lines show what happens; the
+processes' messages go to a log file and are shown above them.
 """
 import argparse
 import math
+import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration
+from kraft_master_driver.slave_sim import PARAMETERS as SLAVE_PARAMETERS
+import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
 SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulator', '--operator', 'push']
 DRIVER = [sys.executable, '-m', 'kraft_master_driver.node', '--ros-args',
           '-p', 'force_enabled_at_start:=true']
 SLAVE = [sys.executable, '-m', 'kraft_master_driver.slave_sim']
+DRIVER_NAME = 'kraft_master_node'
+WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
+START_TIMEOUT = 60.0  # s for the driver and the slave to come up
+REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
 
 
 def _rows(matrix, scales):
@@ -47,56 +64,69 @@ def print_examples(out=sys.stdout):
 
 
 class Readout:
-    """A client node that keeps the newest state of the teleoperation and formats it."""
+    """
+    A client node that takes the newest message of each topic when asked, never spinning.
+
+    Depth-1 subscriptions hold only the newest message, and nothing in this process wakes for
+    the 1 kHz topics: a refresh takes what is there.
+    """
 
     def __init__(self):
-        """Subscribe to the driver's state, the slave's wrench and the diagnostics."""
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import PoseStamped, WrenchStamped
-        import rclpy
-        from sensor_msgs.msg import JointState
-
-        rclpy.init()
-        self.rclpy = rclpy
+        """Subscribe to the driver's state, the slave's, and the diagnostics."""
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C is ours
         self.node = rclpy.create_node('kraft_master_demo')
         self.latest = {}
-        for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
-                                (WrenchStamped, 'wrench'), (PoseStamped, 'slave_pose'),
-                                (DiagnosticArray, 'diagnostics')):
+        self.driver_status = {}
+        self._subscriptions = [
             self.node.create_subscription(
-                msg_type, topic, lambda msg, topic=topic: self.latest.__setitem__(topic, msg), 10)
+                msg_type, topic, lambda _msg: None,
+                QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT),
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+            for msg_type, topic, depth in (
+                (JointState, 'joint_states', 1), (PoseStamped, 'pose', 1),
+                (WrenchStamped, 'wrench', 1), (PoseStamped, 'slave_pose', 1),
+                (DiagnosticArray, '/diagnostics', 10))]
 
-    def spin(self, seconds):
-        """Process messages for about `seconds`."""
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.rclpy.spin_once(self.node, timeout_sec=max(0.0, deadline - time.monotonic()))
+    def take(self):
+        """Take the newest message of each topic, and the driver's newest status."""
+        for subscription in self._subscriptions:
+            with subscription.handle:
+                while (taken := subscription.handle.take_message(
+                        subscription.msg_type, False)) is not None:
+                    self.latest[subscription.topic_name] = taken[0]
+                    if subscription.topic_name == '/diagnostics':
+                        self._keep_driver_status(taken[0])
 
-    def lines(self):
-        """Return the readout: a few lines of text."""
-        latest = self.latest
-        if 'joint_states' not in latest:
-            return ['waiting for the driver ...']
-        state = latest['joint_states']
-        diagnostics = {}
-        for status in getattr(latest.get('diagnostics'), 'status', []):
-            diagnostics.update({kv.key: kv.value for kv in status.values})
-        p = latest['pose'].pose.position if 'pose' in latest else None
-        wrench = latest['wrench'].wrench.force if 'wrench' in latest else None
-        slave = latest['slave_pose'].pose.position if 'slave_pose' in latest else None
-        link_errors = sum(int(diagnostics.get(f'link {k}', 0)) for k in (
+    def _keep_driver_status(self, array):
+        for status in array.status:
+            if status.name.partition(':')[0].rpartition('/')[2] == DRIVER_NAME:
+                self.driver_status = {kv.key: kv.value for kv in status.values}
+
+    def running(self):
+        """Return True once the driver's state and the slave's pose have come."""
+        return '/joint_states' in self.latest and '/slave_pose' in self.latest
+
+    def lines(self, seconds):
+        """Return the readout, a few lines, at `seconds` of teleoperation."""
+        latest, status = self.latest, self.driver_status
+        if not self.running():
+            return ['waiting for the driver and the slave ...']
+        state = latest['/joint_states']
+        p = latest['/pose'].pose.position if '/pose' in latest else None
+        wrench = latest['/wrench'].wrench.force if '/wrench' in latest else None
+        slave = latest['/slave_pose'].pose.position
+        link_errors = sum(int(status.get(f'link {k}', 0)) for k in (
             'timeouts', 'bad_crc', 'garbage_bytes', 'truncated', 'link_faults'))
         return [
-            f'loop {diagnostics.get("loop rate (Hz)", "-"):>7} Hz | period p99 '
-            f'{diagnostics.get("period p99 (ms)", "-")} ms | link errors {link_errors} | '
-            f'force {diagnostics.get("force state", "-")}',
+            f'{seconds:5.1f} s | loop {status.get("loop rate (Hz)", "-")} Hz, period p99 '
+            f'{status.get("period p99 (ms)", "-")} ms | link errors {link_errors} | '
+            f'force {status.get("force state", "-")}',
             'joints (deg)    ' + ' '.join(f'{math.degrees(v):8.2f}' for v in state.position),
             'torques (N*m)   ' + ' '.join(f'{v:8.3f}' for v in state.effort),
             'master wrist (mm) ' + (f'{1e3 * p.x:7.1f} {1e3 * p.y:7.1f} {1e3 * p.z:7.1f}'
                                     if p else '-'),
-            'slave (mm)        ' + (f'{1e3 * slave.x:7.1f} {1e3 * slave.y:7.1f} '
-                                    f'{1e3 * slave.z:7.1f}' if slave else '-')
-            + '   (wall at z = -40.0)',
+            f'slave (mm)        {1e3 * slave.x:7.1f} {1e3 * slave.y:7.1f} {1e3 * slave.z:7.1f}'
+            f'   (wall at z = {1e3 * WALL_Z:.1f})',
             'wrench on master (N) ' + (f'{wrench.x:7.2f} {wrench.y:7.2f} {wrench.z:7.2f}'
                                        if wrench else '-'),
         ]
@@ -104,7 +134,68 @@ class Readout:
     def close(self):
         """Leave ROS."""
         self.node.destroy_node()
-        self.rclpy.try_shutdown()
+        rclpy.try_shutdown()
+
+
+class ProcessLog:
+    """One file for the messages of the demo's processes; new lines are read from it."""
+
+    def __init__(self):
+        """Create the file in the temporary directory."""
+        descriptor, self.path = tempfile.mkstemp(prefix='kraft_master_demo_', suffix='.log')
+        os.close(descriptor)
+        self.file = open(self.path, 'a')  # appends: the processes share it
+        self._reader = open(self.path)
+        self._partial = ''
+
+    def new_lines(self):
+        """Return the complete lines written since the last call."""
+        lines = (self._partial + self._reader.read()).split('\n')
+        self._partial = lines.pop()
+        return lines
+
+    def close(self):
+        """Close both ends; the file stays."""
+        self.file.close()
+        self._reader.close()
+
+
+class Screen:
+    """Writes log lines and readouts: on a terminal the readout stays below, refreshed."""
+
+    def __init__(self, out):
+        """Write to `out`; refresh in place if it is a terminal."""
+        self.out = out
+        self.interactive = out.isatty()
+        self._shown = 0
+        self._last = None
+
+    def show(self, log_lines, readout):
+        """Write the new log lines, then the readout (in place of the last one on a terminal)."""
+        if self.interactive:
+            width = shutil.get_terminal_size().columns - 1
+            readout = [line[:width] for line in readout]
+            if self._shown:
+                self.out.write(f'\x1b[{self._shown}F\x1b[J')  # back over the last readout
+            self._shown = len(readout)
+        elif readout == self._last:
+            readout = []  # piped, a readout that says nothing new is not repeated
+        else:
+            self._last = readout
+            readout = [''] + readout if readout else []
+        self.out.write(''.join(line + '\n' for line in log_lines + readout))
+        self.out.flush()
+
+    def keep(self):
+        """Leave the last readout as it is: what follows goes below it."""
+        self._shown = 0
+
+
+def cpu_seconds(pid):
+    """Return the user + system CPU seconds process `pid` has used (Linux /proc)."""
+    with open(f'/proc/{pid}/stat') as stat:
+        fields = stat.read().rpartition(')')[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def stop(processes):
@@ -119,34 +210,75 @@ def stop(processes):
             process.wait()
 
 
+def _stop_on_sigterm(*_):
+    raise KeyboardInterrupt
+
+
 def teleoperate(duration, out=sys.stdout):
-    """Run driver and slave for `duration` s (or until Ctrl-C), refreshing the readout."""
-    simulator = subprocess.Popen(SIMULATOR, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                 text=True)
-    port = simulator.stdout.readline().partition('port: ')[2].strip()
-    processes = [subprocess.Popen([*DRIVER, '-p', f'port:={port}'], stdin=subprocess.DEVNULL),
-                 subprocess.Popen(SLAVE, stdin=subprocess.DEVNULL), simulator]
-    readout = Readout()
-    interactive = out.isatty()
-    shown = 0
+    """Run the processes for `duration` s once all are up (or until Ctrl-C), showing them."""
+    log = ProcessLog()
+    print(f"The processes' messages go to {log.path}, and are shown here.", file=out,
+          flush=True)
+    child = {'stdin': subprocess.DEVNULL, 'stderr': log.file,
+             'env': dict(os.environ, PYTHONUNBUFFERED='1')}
+    simulator = subprocess.Popen(SIMULATOR, stdout=subprocess.PIPE, text=True, **child)
+    processes = [simulator]
+    screen = Screen(out)
+    previous_sigterm = signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    readout = None
     try:
-        end = time.monotonic() + duration
-        while time.monotonic() < end:
-            readout.spin(0.1 if interactive else 1.0)
-            if any(process.poll() is not None for process in processes):
-                print('a demo process ended early; see its messages above', file=out)
-                return 1
-            lines = readout.lines()
-            if interactive and shown:
-                out.write(f'\x1b[{shown}F\x1b[J')
-            out.write('\n'.join(lines) + '\n')
-            out.flush()
-            shown = len(lines)
+        port = simulator.stdout.readline().partition('port: ')[2].strip()
+        if not port:
+            screen.show(log.new_lines(), ['the simulator did not start'])
+            return 1
+        processes[:0] = [subprocess.Popen([*DRIVER, '-p', f'port:={port}'], stdout=log.file,
+                                          **child),
+                         subprocess.Popen(SLAVE, stdout=log.file, **child)]
+        readout = Readout()
+        return _show(readout, processes, duration, log, screen)
     except KeyboardInterrupt:
-        pass
+        return 0
     finally:
-        readout.close()
+        # Another Ctrl-C or SIGTERM must not cut the stopping short.
+        previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if readout is not None:
+            readout.close()
         stop(processes)
+        signal.signal(signal.SIGINT, previous_sigint)
+        signal.signal(signal.SIGTERM, previous_sigterm)
+        screen.keep()
+        screen.show(log.new_lines(), [])
+        log.close()
+        print(f"The processes' messages: {log.path}", file=out, flush=True)
+
+
+def _show(readout, processes, duration, log, screen):
+    """Refresh the readout until `duration` s after all came up; return the exit code."""
+    started = time.monotonic()
+    up = None
+    while up is None or time.monotonic() - up < duration:
+        time.sleep(REFRESH[screen.interactive])
+        readout.take()
+        now = time.monotonic()
+        if up is None and readout.running():
+            up = now
+            cpu = [cpu_seconds(p.pid) for p in processes], time.process_time()
+        if any(process.poll() is not None for process in processes):
+            screen.show(log.new_lines(), ['a demo process ended early; see its messages'])
+            return 1
+        if up is None and now - started > START_TIMEOUT:
+            screen.show(log.new_lines(), [f'the driver and the slave were not up within '
+                                          f'{START_TIMEOUT:g} s'])
+            return 1
+        screen.show(log.new_lines(), readout.lines(0.0 if up is None else now - up))
+    elapsed = time.monotonic() - up
+    shares = [100.0 * (cpu_seconds(p.pid) - before) / elapsed
+              for p, before in zip(processes, cpu[0])]
+    readout_share = 100.0 * (time.process_time() - cpu[1]) / elapsed
+    screen.keep()
+    screen.show([f'CPU over {elapsed:.0f} s, % of a core: driver {shares[0]:.0f}, slave '
+                 f'{shares[1]:.0f}, simulator {shares[2]:.0f}, readout {readout_share:.0f}'], [])
     return 0
 
 
@@ -154,7 +286,8 @@ def main(argv=None):
     """Print the examples and run the teleoperation demo."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--duration', type=float, default=20.0,
-                        help='seconds of teleoperation (default 20); Ctrl-C ends it earlier')
+                        help='seconds of teleoperation once driver and slave are up '
+                             '(default 20); Ctrl-C ends it earlier')
     args = parser.parse_args(argv)
     print_examples()
     print(f'Simulated teleoperation for {args.duration:g} s (Ctrl-C to stop) ...', flush=True)

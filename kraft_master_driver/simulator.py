@@ -200,7 +200,12 @@ class RandomWalkOperator:
 
 
 class PushOperator:
-    """An operator hand that pushes the wrist straight down and back, `period` s each way."""
+    """
+    An operator hand that pushes the wrist straight down and back, `period` s each way.
+
+    It takes hold when the host first commands: the first stroke starts at rest from home,
+    whenever the driver starts (the simulator holds t at 0 until then).
+    """
 
     DEPTH = 0.08  # m below the home pose at the bottom of the stroke
 
@@ -397,6 +402,7 @@ class SimulatedKraftMaster:
         self._stall_until = 0.0
         self._model_time = 0.0
         self._start_time = 0.0
+        self._waits_for_host = False  # the operator's time stands at 0 until the first command
         self._last_command = 0.0
         self._amplifiers = False
         self._timed_out = False
@@ -477,6 +483,7 @@ class SimulatedKraftMaster:
         os.set_blocking(self._wake[0], False)
         self._open_pty()
         self._start_time = self._model_time = self._last_command = time.monotonic()
+        self._waits_for_host = isinstance(self._operator, PushOperator)
         self._running = True
         self._thread = threading.Thread(target=self._serve, name='kraft_master_sim',
                                         daemon=True)
@@ -554,7 +561,7 @@ class SimulatedKraftMaster:
         if elapsed <= 0.0:
             return
         self._model_time = now
-        target = self._operator.target(now - self._start_time)
+        target = self._operator.target(0.0 if self._waits_for_host else now - self._start_time)
         with self._model_lock:
             self._model.step(min(elapsed, MAX_CATCH_UP), target)
 
@@ -581,6 +588,9 @@ class SimulatedKraftMaster:
         self._apply(command.counts)
         self._last_command = now
         self._amplifiers = True
+        if self._waits_for_host:
+            self._waits_for_host = False
+            self._start_time = now
 
     def _clamped(self, counts):
         """Return True if any command count is beyond its axis limit."""

@@ -45,7 +45,8 @@ def _actions(context):
             }.items()),
         Node(package=PACKAGE, executable='kraft_master_slave_sim', namespace=arm,
              output='screen',
-             parameters=[{'mode': mode, 'base_frame': driver_names(arm)['base_frame']}]),
+             parameters=[{'mode': mode, 'arm': arm,
+                          'base_frame': driver_names(arm)['base_frame']}]),
     ]
     if mode == 'rate':
         actions.append(TimerAction(period=CENTRE_DELAY, actions=[ExecuteProcess(

@@ -87,6 +87,19 @@ def test_wrench_decoded_from_rclpy_serialisation(frame_id, sec, nanosec, values)
     assert [struct.pack('<d', v) for v in got_values] == [struct.pack('<d', v) for v in values]
 
 
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(FRAME_IDS, SEC, NANOSEC, st.lists(st.floats(width=64), min_size=7, max_size=7))
+def test_pose_and_twist_decoded_from_rclpy_serialisation(frame_id, sec, nanosec, values):
+    for message, decoder in ((pose_stamped(frame_id, sec, nanosec, values),
+                              cdr.StampedDoublesDecoder('PoseStamped', 7)),
+                             (twist_stamped(frame_id, sec, nanosec, values[:6]),
+                              cdr.StampedDoublesDecoder('TwistStamped', 6))):
+        got_sec, got_nanosec, got_frame, got_values = decoder.decode(serialize_message(message))
+        assert (got_sec, got_nanosec, got_frame) == (sec, nanosec, frame_id)
+        assert [struct.pack('<d', v) for v in got_values] == [
+            struct.pack('<d', v) for v in values[:len(got_values)]]
+
+
 @settings(max_examples=2000, deadline=None, derandomize=True)
 @given(st.binary(max_size=120) | st.builds(
     lambda data, cut, flips: bytes(

@@ -542,6 +542,18 @@ def test_push_operator_moves_the_wrist_straight_down_and_back():
     assert wrist(1.0)[2] == pytest.approx(top[2] - PushOperator.DEPTH / 2, abs=0.005)
 
 
+def test_push_operator_takes_hold_at_the_hosts_first_command():
+    with SimulatedKraftMaster(operator='push') as simulator:
+        time.sleep(1.5)  # three quarters of a stroke, had the push started with the simulator
+        np.testing.assert_allclose(simulator.joint_angles(), HOME, atol=1e-12)
+        host = Host(simulator.port)
+        assert host.exchange() is not None
+        top = kinematics.forward(HOME)[2, 3]
+        wait_for(lambda: kinematics.forward(simulator.joint_angles())[2, 3] < top - 0.01,
+                 poll=host.exchange)
+        host.port.close()
+
+
 def test_hold_at_moves_the_held_pose_and_only_for_the_hold_operator():
     start = joints_to_actuators(Workspace().home())
     target = joints_to_actuators(np.radians([10.0, 50.0, -100.0, 5.0, 10.0, 0.0]))

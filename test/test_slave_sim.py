@@ -275,7 +275,7 @@ def start_slave(install_prefix):
 
 def test_node_follows_the_pose_stops_at_the_wall_and_reflects_the_force(start_slave):
     master, _ = start_slave([
-        ('centre_at_start', 'false'), ('offset', vector_parameter((0.0, 0.0, 0.1))),
+        ('centre', '[0.0, 0.0, 0.0]'), ('offset', vector_parameter((0.0, 0.0, 0.1))),
         ('box.stiffness', '0.0'), ('scale', '2.0')])
     master.client.wait(lambda: master.wrenches and master.pose_pub.get_subscription_count())
     assert not master.slave_poses, 'no slave pose before the first master pose'

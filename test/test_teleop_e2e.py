@@ -68,7 +68,7 @@ class Teleoperation:
             ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
             ('loop_rate_hz', LOOP_RATE_HZ), ('force_scale', FORCE_SCALE)])
         self.slave = slave_process(prefix, domain_id, [
-            ('centre_at_start', 'false'), ('box.stiffness', '0.0'),
+            ('centre', '[0.0, 0.0, 0.0]'), ('box.stiffness', '0.0'),
             ('wall.point', vector_parameter(self.wall_point)),
             ('wall.normal', vector_parameter(NORMAL))])
         self.client = RosClient(domain_id, history=5000)
