@@ -9,7 +9,7 @@ from kraft_master_driver.calibration import ArmCalibration
 from matplotlib.image import imread
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
 STORE = session.typestore()
@@ -127,7 +127,8 @@ def write_bag(path, storage, arms, compression=None, samples=SAMPLES):
         return written
     plain = path.with_name(path.name + '_plain')
     written = write_bag(plain, storage, arms, samples=samples)
-    writer = Writer(path, version=session.BAG_VERSION, storage_plugin=session.STORAGES[storage])
+    writer = Writer(path, version=session.BAG_VERSION,
+                    storage_plugin=StoragePlugin[storage.upper()])
     writer.set_compression(compression, CompressionFormat.ZSTD)
     with Reader(plain) as reader, writer:
         connections = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
@@ -349,7 +350,7 @@ def test_storage_file_of_a_bag_reads_as_the_bag(tmp_path, capsys):
     bag = tmp_path / 'bag'
     write_bag(bag, 'mcap', {'': ('right', 7)}, samples=300)
     (arm_from_directory,) = report.read_arms(bag)
-    (arm_from_file,) = report.read_arms(bag / 'bag.mcap', [''])
+    (arm_from_file,) = report.read_arms(bag / 'bag_0.mcap', [''])
     for field in ('stamp', 'position', 'pots', 'wrist', 'wrench'):
         np.testing.assert_array_equal(getattr(arm_from_file, field),
                                       getattr(arm_from_directory, field))
