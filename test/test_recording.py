@@ -1,15 +1,23 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""A live session of the installed driver, recorded into rosbag2 (mcap and sqlite3) and read."""
+"""A live session of the installed driver recorded into rosbag2 (mcap, sqlite3) and read back."""
+import collections
 import csv
+import re
+import signal
+import sqlite3
+import subprocess
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import DriverProcess, next_domain_id, wait_for
+from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver import kinematics, report, session
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.simulator import SimulatedKraftMaster
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 import rclpy
@@ -17,6 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import JointState
+from test_bag_format import generated_type_hash
 
 pytestmark = pytest.mark.integration
 
@@ -211,3 +220,133 @@ def test_report_of_the_recording(recorded, tmp_path, capsys):
     efforts = np.array([[float(x) for x in row[13:19]] for row in rows])
     assert np.abs(efforts).max() > 0.01
     assert (tmp_path / 'mcap_report.png').stat().st_size > 10_000
+
+
+class RecordCommand:
+    """The installed kraft_master_record, its output collected line by line."""
+
+    def __init__(self, prefix, domain_id, args):
+        """Start it with `args`."""
+        self.process = subprocess.Popen(
+            [str(executable(prefix, 'kraft_master_record')), *args],
+            env=installed_env(prefix, domain_id), stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)
+        self.lines = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self):
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip('\n'))
+
+    def counts(self, prefix=''):
+        """Return {topic: count} of the last status line that starts with `prefix`."""
+        lines = [line for line in self.lines if ' messages' in line and line.startswith(prefix)]
+        counts = lines[-1].partition(' messages (')[2] if lines else ''
+        return {topic: int(count) for topic, count in re.findall(r'(/\S+) (\d+)', counts)}
+
+    def stop(self, sig):
+        """Send `sig`; return the exit code."""
+        self.process.send_signal(sig)
+        self.process.wait(timeout=60)
+        self.reader.join(timeout=10)
+        return self.process.returncode
+
+    def kill(self):
+        """Make sure the process is gone."""
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(timeout=10)
+
+
+@pytest.fixture(scope='module')
+def right_arm(install_prefix):
+    """Run the installed driver in /right on a simulated device; return (domain, hashes)."""
+    domain_id = next_domain_id()
+    simulator = SimulatedKraftMaster(arm='right', operator='sweep', operator_period=1.0)
+    driver = DriverProcess(install_prefix, domain_id, [
+        ('port', simulator.start()), ('arm', 'right'), ('loop_rate_hz', 200.0)],
+        namespace='/right')
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node('type_hash_probe', context=context)
+    try:
+        infos = wait_for(lambda: node.get_publishers_info_by_topic('/right/joint_states'),
+                         timeout=60.0)
+        yield domain_id, {str(info.topic_type_hash) for info in infos}
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        driver.kill()
+        simulator.stop()
+
+
+@pytest.mark.parametrize('sig, storage', [(signal.SIGINT, 'mcap'), (signal.SIGTERM, 'mcap'),
+                                          (signal.SIGTERM, 'sqlite3')])
+def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_path, sig,
+                                              storage):
+    domain_id, endpoint_hashes = right_arm
+    bag = tmp_path / 'arm_session'
+    recorder = RecordCommand(install_prefix, domain_id, [
+        '-o', str(bag), '-s', storage, '--namespace', 'right', '--status-period', '0.2'])
+    try:
+        wait_for(lambda: recorder.counts().get('/right/joint_states', 0) >= 300 and
+                 any(recorder.counts().get(t) for t in ('/diagnostics', '/right/diagnostics')),
+                 timeout=90.0)
+        assert recorder.stop(sig) == 0, '\n'.join(recorder.lines)
+    finally:
+        recorder.kill()
+    output = '\n'.join(recorder.lines)
+    assert output.startswith(f'Recording into {bag} ({storage}): /diagnostics ')
+    assert 'Subscribed to /right/pots (sensor_msgs/msg/JointState)' in output
+    closed = recorder.counts(prefix=f'Closed {bag}: ')
+    assert closed['/right/joint_states'] >= 300
+    published = {topic: count for topic, count in closed.items() if count}
+    assert sorted(p.name for p in bag.iterdir()) == sorted(
+        ['metadata.yaml', f'arm_session_0.{"mcap" if storage == "mcap" else "db3"}'])
+
+    store = session.typestore()
+    read = collections.Counter()
+    with Reader(bag) as reader:
+        assert {c.topic: c.msgcount for c in reader.connections} == closed
+        for connection, _, data in reader.messages():
+            store.deserialize_cdr(data, connection.msgtype)
+            read[connection.topic] += 1
+    assert read == published
+    (endpoint_hash,) = endpoint_hashes
+    assert endpoint_hash == generated_type_hash(session.JOINT_STATE)
+
+    if storage == 'sqlite3':
+        database = sqlite3.connect(bag / 'arm_session_0.db3')
+        hashes = dict(database.execute('SELECT name, type_description_hash FROM topics'))
+        database.close()
+        assert hashes['/right/joint_states'] == endpoint_hash
+        return
+    with open(bag / 'arm_session_0.mcap', 'rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        counts = collections.Counter()
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            counts[channel.topic] += 1
+            if channel.topic == '/right/joint_states':
+                assert channel.metadata['topic_type_hash'] == endpoint_hash
+                assert list(decoded.name) == list(kinematics.JOINT_NAMES)
+                stamp = decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec
+                # Stamped at the sample, sent (publish time), then received (log time).
+                assert stamp <= message.publish_time <= message.log_time
+    assert counts == published
+
+
+def test_record_command_refuses_an_existing_bag_and_answers_help(install_prefix, tmp_path):
+    bag = tmp_path / 'taken'
+    bag.mkdir()
+    (bag / 'keep').write_text('kept')
+    env = installed_env(install_prefix, next_domain_id())
+    command = str(executable(install_prefix, 'kraft_master_record'))
+    result = subprocess.run([command, '-o', str(bag)], env=env, capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 1
+    assert result.stderr.strip().count('\n') == 0 and str(bag) in result.stderr
+    assert (bag / 'keep').read_text() == 'kept' and len(list(bag.iterdir())) == 1
+    result = subprocess.run([command, '--help'], env=env, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0 and 'usage: kraft_master_record' in result.stdout
