@@ -1043,19 +1043,26 @@ def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise
 
 
 def write_samples(recorder, namespace, samples, joint_names=None, frame_id='kraft_master_base',
-                  diagnostics_every=1000, receive_delay_ns=200_000):
+                  diagnostics_every=1000, receive_delay_ns=200_000, diagnostics_topic=None):
     """
     Write `samples` into `recorder` as the driver's topics under `namespace`.
 
     Each message is serialised by rosbags: joint_states, pose, pots and wrench per sample
     (received receive_delay_ns after their stamp), and a diagnostics message every
-    `diagnostics_every` samples. Topics not yet in the recorder are added.
+    `diagnostics_every` samples: on `<namespace>/diagnostics`, the status named by the bare
+    node name, or on `diagnostics_topic` (e.g. /diagnostics) by the node's full name. A late
+    cycle and a link timeout are counted every 5000 samples. Topics not yet in the recorder
+    are added.
     """
     store = typestore()
     types = store.types
     names = list(joint_names or kinematics.JOINT_NAMES)
     pot_names = [f'pot{i}' for i in range(1, 7)]
     topics = {name: f'{namespace}/{name}' for name in DRIVER_TOPICS}
+    status_name = 'kraft_master_node: Kraft Master'
+    if diagnostics_topic:
+        topics['diagnostics'] = diagnostics_topic
+        status_name = f'{namespace}/{status_name}'
     for name in ('joint_states', 'pose', 'pots', 'wrench', 'diagnostics'):
         if topics[name] not in recorder.counts:
             recorder.add_topic(topics[name], DRIVER_TOPICS[name], [qos_profile()])
@@ -1086,12 +1093,13 @@ def write_samples(recorder, namespace, samples, joint_names=None, frame_id='kraf
                 force=vector(x=fx, y=fy, z=fz), torque=vector(x=mx, y=my, z=mz)))),
         )
         if i % diagnostics_every == diagnostics_every - 1:
-            values = [key_value(key='loop rate (Hz)', value='1000.0'),
-                      key_value(key='link cycles', value=str(i + 1)),
-                      key_value(key='link timeouts', value=str(i // 5000))]
+            values = [key_value(key=key, value=value) for key, value in (
+                ('loop rate (Hz)', '1000.0'), ('late cycles', str(i // 5000)),
+                ('missed cycles', '0'), ('link round trip median (ms)', '0.420'),
+                ('link cycles', str(i + 1)), ('link timeouts', str(i // 5000)))]
             messages += (('diagnostics', types[DIAGNOSTIC_ARRAY](header=header, status=[
-                status_type(level=0, name=f'kraft_master_node{namespace}',
-                            message='running', hardware_id='sim', values=values)])),)
+                status_type(level=0, name=status_name, message='running', hardware_id='sim',
+                            values=values)])),)
         for name, message in messages:
             data = store.serialize_cdr(message, message.__msgtype__)
             recorder.write(topics[name], received, data)
