@@ -13,7 +13,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver import kinematics, report, session
+from kraft_master_driver import kinematics, record, report, session
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.simulator import SimulatedKraftMaster
 from mcap.reader import make_reader
@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import JointState
 from test_bag_format import generated_type_hash
@@ -281,26 +282,39 @@ def right_arm(install_prefix):
         simulator.stop()
 
 
-@pytest.mark.parametrize('sig, storage', [(signal.SIGINT, 'mcap'), (signal.SIGTERM, 'mcap'),
-                                          (signal.SIGTERM, 'sqlite3')])
+ARM_TOPICS = ['/right/joint_states', '/right/pose', '/right/pots']
+
+
+@pytest.mark.parametrize('sig, storage, selection', [
+    (signal.SIGINT, 'mcap', ['--namespace', 'right']),
+    (signal.SIGTERM, 'mcap', ['--namespace', 'right']),
+    (signal.SIGTERM, 'sqlite3', ARM_TOPICS),
+    (signal.SIGINT, 'sqlite3', ['-a'])])
 def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_path, sig,
-                                              storage):
+                                              storage, selection):
     domain_id, endpoint_hashes = right_arm
     bag = tmp_path / 'arm_session'
     recorder = RecordCommand(install_prefix, domain_id, [
-        '-o', str(bag), '-s', storage, '--namespace', 'right', '--status-period', '0.2'])
+        *selection, '-o', str(bag), '-s', storage, '--status-period', '0.2'])
     try:
-        wait_for(lambda: recorder.counts().get('/right/joint_states', 0) >= 300 and
-                 any(recorder.counts().get(t) for t in ('/diagnostics', '/right/diagnostics')),
-                 timeout=90.0)
+        wait_for(lambda: recorder.counts().get('/right/joint_states', 0) >= 300 and (
+            selection == ARM_TOPICS or
+            any(recorder.counts().get(t) for t in ('/diagnostics', '/right/diagnostics'))),
+            timeout=90.0)
         assert recorder.stop(sig) == 0, '\n'.join(recorder.lines)
     finally:
         recorder.kill()
     output = '\n'.join(recorder.lines)
-    assert output.startswith(f'Recording into {bag} ({storage}): /diagnostics ')
+    assert output.startswith(f'Recording into {bag} ({storage}): ' + {
+        '-a': 'every topic', '--namespace': '/diagnostics '}.get(
+            selection[0], ' '.join(ARM_TOPICS)))
     assert 'Subscribed to /right/pots (sensor_msgs/msg/JointState)' in output
     closed = recorder.counts(prefix=f'Closed {bag}: ')
     assert closed['/right/joint_states'] >= 300
+    if selection == ARM_TOPICS:
+        assert sorted(closed) == ARM_TOPICS
+    if selection == ['-a']:
+        assert {'/rosout', '/parameter_events', *ARM_TOPICS} <= set(closed)
     published = {topic: count for topic, count in closed.items() if count}
     assert sorted(p.name for p in bag.iterdir()) == sorted(
         ['metadata.yaml', f'arm_session_0.{"mcap" if storage == "mcap" else "db3"}'])
@@ -334,6 +348,32 @@ def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_pat
                 # Stamped at the sample, sent (publish time), then received (log time).
                 assert stamp <= message.publish_time <= message.log_time
     assert counts == published
+
+
+def test_record_selects_the_driver_topics_of_each_namespace():
+    assert record.driver_topics(['right', 'left']) == ['/diagnostics'] + [
+        f'/{arm}/{name}' for arm in ('left', 'right') for name in sorted(session.DRIVER_TOPICS)]
+    assert record.driver_topics(['/']) == ['/diagnostics', '/joint_states', '/pose', '/pots',
+                                           '/rate_command', '/wrench']
+
+
+def endpoint(reliability, durability):
+    """Return the TopicEndpointInfo of a publisher offering `reliability` and `durability`."""
+    return TopicEndpointInfo(qos_profile=QoSProfile(depth=10, reliability=reliability,
+                                                    durability=durability))
+
+
+def test_record_subscribes_with_what_every_publisher_offers():
+    reliable, best_effort = ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT
+    volatile, latched = DurabilityPolicy.VOLATILE, DurabilityPolicy.TRANSIENT_LOCAL
+    for offered, expected in (
+            ([(reliable, volatile)], (reliable, volatile)),
+            ([(reliable, latched), (reliable, latched)], (reliable, latched)),
+            ([(reliable, volatile), (best_effort, latched)], (best_effort, volatile)),
+            ([(best_effort, volatile)], (best_effort, volatile))):
+        qos = record.subscription_qos([endpoint(*policies) for policies in offered])
+        assert (qos.reliability, qos.durability) == expected
+        assert qos.depth == record.SUBSCRIPTION_DEPTH
 
 
 def test_record_command_refuses_an_existing_bag_and_answers_help(install_prefix, tmp_path):
