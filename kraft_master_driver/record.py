@@ -17,6 +17,7 @@ from datetime import datetime
 import importlib
 from pathlib import Path
 import signal
+import sqlite3
 import sys
 import time
 
@@ -156,7 +157,7 @@ def _parser():
 
 
 def main(argv=None):
-    """Record until Ctrl-C or SIGTERM; return 0, or 1 when the bag cannot be made."""
+    """Record until Ctrl-C or SIGTERM; return 0, or 1 when the bag cannot be made or written."""
     parser = _parser()
     args = parser.parse_args(rclpy.utilities.remove_ros_args(
         sys.argv[1:] if argv is None else argv))
@@ -183,6 +184,7 @@ def main(argv=None):
     print(f'Recording into {output} ({args.storage}): '
           + ('every topic' if topics is None else ' '.join(topics)), flush=True)
     started = next_discovery = next_status = time.monotonic()
+    status = 0
     try:
         while not stop:
             now = time.monotonic()
@@ -194,14 +196,20 @@ def main(argv=None):
                 next_status = now
                 print(status_line(bag, now - started), flush=True)
             executor.spin_once(timeout_sec=DISCOVERY_PERIOD_S)
+    except (OSError, sqlite3.Error) as error:
+        print(f'kraft_master_record: cannot write to {output}: {error}', file=sys.stderr)
+        status = 1
     finally:
-        bag.close()
+        try:
+            bag.close()
+        except session.SessionError as error:
+            print(f'kraft_master_record: {error}', file=sys.stderr)
+            status = 1
         executor.shutdown()
         recorder.close()
         rclpy.try_shutdown(context=context)
     print(f'Closed {output}: {status_line(bag, time.monotonic() - started)}', flush=True)
-    return 0
-
+    return status
 
 if __name__ == '__main__':
     sys.exit(main())

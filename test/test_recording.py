@@ -78,7 +78,8 @@ class LiveRecorder:
     def start(self):
         """Wait for the driver's publishers, then subscribe to every topic, raw."""
         wait_for(lambda: all(self.node.count_publishers(topic) for topic in TOPICS) and
-                 self.wrench_pub.get_subscription_count() > 0, spin=lambda: self.spin(0.05))
+                 self.wrench_pub.get_subscription_count() > 0, timeout=120.0,
+                 spin=lambda: self.spin(0.05))
         for topic, msg_type in TOPICS.items():
             self.offered[topic] = [offered_qos(info) for info
                                    in self.node.get_publishers_info_by_topic(topic)]
@@ -132,7 +133,7 @@ def recorded(install_prefix, tmp_path_factory):
             recorder.spin(0.005)
             states = recorder.received['/joint_states']
             return len(recorder.received['/diagnostics']) >= 2 and len(states) >= 400
-        wait_for(publish_and_check, timeout=30.0)
+        wait_for(publish_and_check, timeout=120.0)
     finally:
         recorder.close()
         driver.kill()
