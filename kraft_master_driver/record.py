@@ -211,5 +211,6 @@ def main(argv=None):
     print(f'Closed {output}: {status_line(bag, time.monotonic() - started)}', flush=True)
     return status
 
+
 if __name__ == '__main__':
     sys.exit(main())
