@@ -7,8 +7,9 @@ For each arm in the bag (topics joint_states, pose, pots, wrench, diagnostics un
 namespace such as /left, or at the root) it draws the joint angles over time against the
 Table II limits, the wrist path in 3-D and in the three planes, the task wrench and the
 commanded joint torques, the loop period histogram (from the joint_states stamps) and
-the link error counters (from diagnostics), and writes one CSV row per sample:
-stamp_ns, six positions (rad), six velocities (rad/s), six efforts (N*m), six pots
+the driver's diagnostics (link error counts, late and missed cycles, link round trip; read
+from <namespace>/diagnostics or /diagnostics by the node's name), and writes one CSV row per
+sample: stamp_ns, six positions (rad), six velocities (rad/s), six efforts (N*m), six pots
 (counts), wrist x y z (m) and quaternion qx qy qz qw. Missing values are empty fields.
 
 With --calibration the joint angles and wrist poses are recomputed from the recorded raw
@@ -29,12 +30,16 @@ from matplotlib.figure import Figure
 import numpy as np
 
 ARM_TOPICS = ('joint_states', 'pose', 'pots', 'wrench', 'diagnostics')
-DIAGNOSTICS = '/diagnostics'  # where the driver publishes them, whatever its namespace
 STATE_TOPICS = ('joint_states', 'pots', 'pose')  # one of them makes a namespace an arm
 PLOT_BUCKETS = 1500  # time series are drawn as min/max envelopes of this many buckets
 PATH_POINTS = 5000  # wrist paths are drawn with at most this many points
 CSV_CHUNK = 65536  # rows formatted at once
-LINK_PROGRESS_KEYS = ('link cycles', 'link replies')  # counters that are not errors
+# Link counters that are not errors: progress, and what the driver did to commands.
+LINK_NOT_ERRORS = ('cycles', 'replies', 'clamped_commands', 'nonfinite_commands',
+                   'zero_commands', 'low_latency_failures')
+LOOP_COUNTERS = ('late cycles', 'missed cycles')
+ROUND_TRIP_KEYS = tuple(f'link round trip {label} (ms)' for label in ('median', 'p99', 'max'))
+PERIOD_BINS = 100  # histogram bins up to the clip, and one more for everything above it
 PLANES = (('x', 'y'), ('x', 'z'), ('y', 'z'))
 AXES = {'x': 0, 'y': 1, 'z': 2}
 
@@ -106,24 +111,37 @@ def _six(values):
     return out
 
 
-def _diagnostics(data, namespace):
+def _status_namespace(name):
     """
-    Return (receive time, {key: value}) of the driver's status in each message.
+    Return the namespace of the node that named a status '<node>: <what>', or None.
 
-    The driver publishes on /diagnostics, its status named '<namespace>/<node>: ...'; bags of
-    earlier versions hold it on <namespace>/diagnostics.
+    A full node name (/right/kraft_master_node) gives its namespace ('/right', '' at the
+    root); a bare node name (kraft_master_node, as published on a namespaced topic) gives None.
+    """
+    node = name.partition(':')[0].strip().strip('/')
+    return '/' + node.rpartition('/')[0] if '/' in node else None
+
+
+def _diagnostics(namespace, topics):
+    """
+    Return (receive time, {key: value}) of the driver's status in `namespace`, in time order.
+
+    topics maps each diagnostics topic read ('<namespace>/diagnostics', '/diagnostics') to
+    its TopicData. A status is the driver's when it has link counters and its name carries
+    the node's namespace, or a bare node name on the namespace's own diagnostics topic.
     """
     entries = []
-    for log_time, message in zip(data.log_time.tolist(), data.messages):
-        for status in message.status:
-            node, colon, _ = status.name.partition(': ')
-            if colon and node.startswith('/') and node.rpartition('/')[0] != namespace:
-                continue
-            values = {pair.key: pair.value for pair in status.values}
-            if any(key.startswith('link ') for key in values):
-                entries.append((log_time, values))
-                break
-    return entries
+    for topic, data in topics.items():
+        for log_time, message in zip(data.log_time.tolist(), data.messages):
+            for status in message.status:
+                values = {pair.key: pair.value for pair in status.values}
+                owner = _status_namespace(status.name)
+                if any(key.startswith('link ') for key in values) and (
+                        (owner or '/') == (namespace or '/') or
+                        (owner is None and topic == f'{namespace}/diagnostics')):
+                    entries.append((log_time, values))
+                    break
+    return sorted(entries, key=lambda entry: entry[0])
 
 
 def _arm_of(namespace, calibration, position, wrist):
@@ -143,20 +161,37 @@ def _arm_of(namespace, calibration, position, wrist):
     return 'right'
 
 
+def diagnostics_topics(namespace):
+    """Return where the driver in `namespace` may publish diagnostics: its own, /diagnostics."""
+    return list(dict.fromkeys([f'{namespace}/diagnostics', '/diagnostics']))
+
+
+def arm_topics(namespace):
+    """Return the topics read for the driver in `namespace`."""
+    return [f'{namespace}/{name}' for name in ARM_TOPICS if name != 'diagnostics'] + (
+        diagnostics_topics(namespace))
+
+
 def assemble(namespace, data, topics, calibration=None):
     """Build the ArmData of `namespace` from decoded topics `data` and the bag's `topics`."""
-    missing, notes, found = [], [], {}
+    missing, notes, found, diagnostics = [], [], {}, {}
     for name in ARM_TOPICS:
-        topic = f'{namespace}/{name}'
-        if name == 'diagnostics' and DIAGNOSTICS in topics:
-            topic = DIAGNOSTICS
-        expected = session.DRIVER_TOPICS[name]
-        if topic not in topics:
-            missing.append(topic)
-        elif topics[topic][0] != expected:
-            notes.append(f'{topic} has type {topics[topic][0]}, expected {expected}; ignored')
-        elif topic in data:
-            found[name] = data[topic]
+        candidates = (diagnostics_topics(namespace) if name == 'diagnostics' else
+                      [f'{namespace}/{name}'])
+        if not any(topic in topics for topic in candidates):
+            missing.append(' or '.join(candidates))
+        for topic in (topic for topic in candidates if topic in topics):
+            expected = session.DRIVER_TOPICS[name]
+            if topics[topic][0] != expected:
+                notes.append(f'{topic} has type {topics[topic][0]}, expected {expected}; '
+                             'ignored')
+                continue
+            if topic not in data:
+                continue
+            if name == 'diagnostics':
+                diagnostics[topic] = data[topic]
+            else:
+                found[name] = data[topic]
             if data[topic].malformed:
                 notes.append(f'{topic}: {data[topic].malformed} malformed messages skipped')
     primary = next((found[name] for name in ('joint_states', 'pots', 'pose')
@@ -185,8 +220,7 @@ def assemble(namespace, data, topics, calibration=None):
         wrench=(np.empty((0, 6)) if wrench is None or not len(wrench) else
                 np.hstack([wrench.fields['force'], wrench.fields['torque']])),
         wrench_frame='' if wrench is None else wrench.strings.get('frame_id', ''),
-        diagnostics=(_diagnostics(found['diagnostics'], namespace)
-                     if 'diagnostics' in found else []),
+        diagnostics=_diagnostics(namespace, diagnostics),
         missing=missing, notes=notes)
 
 
@@ -204,8 +238,7 @@ def read_arms(bag, namespaces=None, calibration=None):
     if not found:
         raise session.SessionError(
             f'{bag}: no driver topics ({", ".join(STATE_TOPICS)}) in the bag')
-    data = session.read_topics(
-        bag, [DIAGNOSTICS] + [f'{ns}/{name}' for ns in found for name in ARM_TOPICS])
+    data = session.read_topics(bag, sorted({topic for ns in found for topic in arm_topics(ns)}))
     return [assemble(ns, data, topics, calibration) for ns in found]
 
 
@@ -257,24 +290,34 @@ def loop_periods(stamp):
     return np.diff(stamp) / 1e9
 
 
+def diagnostics_series(diagnostics, keys):
+    """Return (times ns, {key: float values, NaN where absent}) of `keys` in `diagnostics`."""
+    series = {}
+    for key in keys:
+        values = []
+        for _, status in diagnostics:
+            try:
+                values.append(float(status.get(key, 'nan')))
+            except ValueError:
+                values.append(math.nan)
+        series[key] = np.array(values)
+    return np.array([t for t, _ in diagnostics], dtype=np.int64), series
+
+
 def link_errors(diagnostics):
     """Return (times ns, {counter: values}) of the link error counters that ever rose."""
-    if not diagnostics:
-        return np.empty(0, np.int64), {}
     keys = sorted({key for _, values in diagnostics for key in values
-                   if key.startswith('link ') and key not in LINK_PROGRESS_KEYS})
-    counters = {}
-    for key in keys:
-        series = []
-        for _, values in diagnostics:
-            try:
-                series.append(float(values.get(key, 'nan')))
-            except ValueError:
-                series.append(math.nan)
-        series = np.array(series)
-        if np.nanmax(series, initial=0.0) > 0:
-            counters[key.removeprefix('link ')] = series
-    return np.array([t for t, _ in diagnostics], dtype=np.int64), counters
+                   if key.startswith('link ') and not key.endswith('(ms)') and
+                   key.removeprefix('link ') not in LINK_NOT_ERRORS})
+    times, series = diagnostics_series(diagnostics, keys)
+    return times, {key.removeprefix('link '): values for key, values in series.items()
+                   if np.nanmax(values, initial=0.0) > 0}
+
+
+def last_values(series):
+    """Return {key: the last finite value} of diagnostics series (absent if none)."""
+    return {key: values[np.isfinite(values)][-1] for key, values in series.items()
+            if np.isfinite(values).any()}
 
 
 # -- CSV -------------------------------------------------------------------------------------
@@ -425,8 +468,9 @@ def _draw_joints(axes, t, arm_data, recalibration):
             th2_range = (0.0, upper[1])
             elbow_upper = np.interp(th2, th2_range,
                                     [kinematics.joint_limits(x)[1][2] for x in th2_range])
-            ax.plot(*envelope(t, np.degrees(elbow_upper)), color='red', lw=0.8, ls='--')
-            ax.axhline(math.degrees(lower[2]), color='red', lw=0.8, ls='--')
+            ax.plot(*envelope(t, np.degrees(elbow_upper)), color='darkorange', lw=0.8, ls='--',
+                    label='upper stop, moves with th2')
+            ax.axhline(math.degrees(lower[2]), color='red', lw=0.8, ls='--', label='stop')
         else:
             for limit in (lower[joint], upper[joint]):
                 ax.axhline(math.degrees(limit), color='red', lw=0.8, ls='--')
@@ -438,6 +482,7 @@ def _draw_joints(axes, t, arm_data, recalibration):
         if recalibration is not None:
             ax.plot(*envelope(t, np.degrees(recalibration.position[:, joint])), lw=0.8,
                     ls='--', label='recalibrated')
+        if (recalibration is not None or joint == 2) and ax.get_legend_handles_labels()[0]:
             ax.legend(loc='upper right', fontsize='small')
 
 
@@ -508,30 +553,92 @@ def _draw_periods(ax, periods):
         _no_data(ax, 'fewer than two samples')
         return
     median, p99 = np.percentile(periods, (50, 99))
-    ax.hist(periods, bins=np.linspace(0.0, max(3.0 * median, p99 * 1.1), 120), log=True)
+    counts, edges = period_histogram(periods)
+    clip, width = edges[-2], edges[1] - edges[0]
+    colours = ['C0'] * PERIOD_BINS + ['red']
+    ax.bar(edges[:-1], counts, width=width, align='edge', color=colours, log=True)
+    over = int(counts[-1])
+    if over:
+        ax.annotate(f'{over} over {clip:.2f} ms\nmax {periods.max():.1f} ms',
+                    (edges[-2] + width / 2, over), xytext=(-8, 12),
+                    textcoords='offset points', ha='right', color='red', fontsize='small',
+                    arrowprops={'arrowstyle': '->', 'color': 'red'})
     ax.set_title(f'loop period: median {median:.3f} ms, p99 {p99:.3f} ms, '
                  f'max {periods.max():.3f} ms')
+
+
+def period_histogram(periods_ms):
+    """
+    Return (counts, edges) of periods (ms): PERIOD_BINS bins up to a clip, then one more.
+
+    The clip is three medians or 1.1 times the 99th percentile, whichever is larger; the
+    last bin counts every period above it, so no outlier is left out.
+    """
+    median, p99 = np.percentile(periods_ms, (50, 99))
+    clip = max(3.0 * median, p99 * 1.1)
+    width = clip / PERIOD_BINS
+    edges = np.linspace(0.0, clip + width, PERIOD_BINS + 2)
+    counts, _ = np.histogram(np.minimum(periods_ms, clip + width / 2), bins=edges)
+    return counts, edges
 
 
 def _draw_link_errors(ax, t0, arm_data):
     ax.set_title('link errors (diagnostics)')
     ax.set_xlabel('time (s)')
+    ax.set_ylabel('count since the driver started')
     times, counters = link_errors(arm_data.diagnostics)
     if not arm_data.diagnostics:
         _no_data(ax, 'no diagnostics')
     elif not counters:
         _no_data(ax, f'no link errors in {len(arm_data.diagnostics)} diagnostics messages')
     for name, values in counters.items():
-        ax.step((times - t0) / 1e9, values, where='post', label=name)
+        ax.step((times - t0) / 1e9, values, where='post', label=f'{name} ({values[-1]:.0f})')
     if counters:
+        ax.yaxis.get_major_locator().set_params(integer=True)
         ax.legend(loc='upper left', fontsize='small')
+
+
+def _draw_loop_counters(ax, t0, arm_data):
+    ax.set_title('late and missed loop cycles (diagnostics)')
+    ax.set_xlabel('time (s)')
+    ax.set_ylabel('count since the driver started')
+    times, series = diagnostics_series(arm_data.diagnostics, LOOP_COUNTERS)
+    if not arm_data.diagnostics:
+        _no_data(ax, 'no diagnostics')
+        return
+    if not any(np.isfinite(values).any() for values in series.values()):
+        _no_data(ax, 'the diagnostics do not count late and missed cycles')
+        return
+    last = last_values(series)
+    for name, values in series.items():
+        ax.step((times - t0) / 1e9, values, where='post',
+                label=f'{name} ({last.get(name, math.nan):.0f})')
+    if not any(last.values()):
+        _no_data(ax, f'no late or missed cycles in {len(arm_data.diagnostics)} diagnostics '
+                     'messages')
+    ax.yaxis.get_major_locator().set_params(integer=True)
+    ax.legend(loc='upper left', fontsize='small')
+
+
+def _draw_round_trip(ax, t0, arm_data):
+    ax.set_title('link round trip per diagnostics period (ms)')
+    ax.set_xlabel('time (s)')
+    ax.set_ylabel('ms')
+    times, series = diagnostics_series(arm_data.diagnostics, ROUND_TRIP_KEYS)
+    if not any(np.isfinite(values).any() for values in series.values()):
+        _no_data(ax, 'no round trip in the diagnostics')
+        return
+    for key, values in series.items():
+        ax.plot((times - t0) / 1e9, values, marker='.', lw=0.8,
+                label=key.removeprefix('link round trip ').removesuffix(' (ms)'))
+    ax.legend(loc='upper left', fontsize='small')
 
 
 def draw(arm_data, recalibration=None, title=''):
     """Return the report Figure of one arm."""
-    figure = Figure(figsize=(22, 24))
-    grid = figure.add_gridspec(5, 4, left=0.04, right=0.98, bottom=0.03, top=0.95,
-                               hspace=0.3, wspace=0.22)
+    figure = Figure(figsize=(22, 28))
+    grid = figure.add_gridspec(6, 4, left=0.04, right=0.98, bottom=0.03, top=0.955,
+                               hspace=0.32, wspace=0.22)
     t0 = arm_data.stamp[0] if len(arm_data.stamp) else (
         arm_data.wrench_time[0] if len(arm_data.wrench_time) else 0)
     t = (arm_data.stamp - t0) / 1e9
@@ -547,6 +654,8 @@ def draw(arm_data, recalibration=None, title=''):
                  arm_data)
     _draw_torques(figure.add_subplot(grid[4, 0:2]), t, arm_data)
     _draw_link_errors(figure.add_subplot(grid[4, 2:4]), t0, arm_data)
+    _draw_loop_counters(figure.add_subplot(grid[5, 0:2]), t0, arm_data)
+    _draw_round_trip(figure.add_subplot(grid[5, 2:4]), t0, arm_data)
     figure.suptitle(title, fontsize='x-large')
     return figure
 
@@ -565,6 +674,13 @@ def summary(arm_data, recalibration=None):
         median, p99 = np.percentile(periods, (50, 99)) * 1e3
         lines.append(f'  loop period median {median:.3f} ms, p99 {p99:.3f} ms, '
                      f'max {periods.max() * 1e3:.3f} ms')
+    if arm_data.diagnostics:
+        _, counters = link_errors(arm_data.diagnostics)
+        loop = last_values(diagnostics_series(arm_data.diagnostics, LOOP_COUNTERS)[1])
+        errors = ', '.join(f'{name} {values[-1]:.0f}' for name, values in counters.items())
+        lines.append(f'  {len(arm_data.diagnostics)} diagnostics messages: '
+                     + ''.join(f'{key} {value:.0f}, ' for key, value in loop.items())
+                     + f'link errors: {errors or "none"}')
     if arm_data.missing:
         lines.append(f'  missing topics: {", ".join(arm_data.missing)}')
     lines += [f'  {note}' for note in arm_data.notes]

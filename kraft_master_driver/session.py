@@ -4,8 +4,11 @@
 Recorded sessions of the driver: rosbag2 directories (mcap or sqlite3 storage).
 
 BagRecorder writes raw CDR bytes, as a subscription with raw=True receives them, into a
-new rosbag2 directory with the rosbags library, with the message types and offered QoS
-profiles that `ros2 bag record` (ROS 2 Jazzy) stores.
+new rosbag2 directory laid out as `ros2 bag record` of ROS 2 Jazzy writes it: `NAME_0.mcap`
+(ros2 profile, plain chunks, channels with offered_qos_profiles and topic_type_hash,
+messages with receive and send times, the bag's metadata in a 'rosbag2' record) or
+`NAME_0.db3` (the sqlite3 plugin's schema version 4), and metadata.yaml (version 9,
+ros_distro jazzy). Message definitions and RIHS01 type hashes are rosbag2's.
 
 read_topics reads topics back as numpy arrays, fast enough for millions of messages. The
 raw bytes come straight from the storage: MCAP chunks located through their message
@@ -20,19 +23,24 @@ simulate_samples and write_samples make synthetic sessions for tests and benchma
 """
 import collections
 import functools
+from importlib import metadata as package_metadata
+import os
 from pathlib import Path
+import re
 import sqlite3
 import struct
+import sys
 import threading
 from typing import NamedTuple
+import zlib
 
 from kraft_master_driver import kinematics
 from lz4.frame import decompress as lz4_decompress
 import numpy as np
 from rosbags.interfaces import (
     Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime)
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from rosbags.rosbag2.errors import ReaderError, WriterError
+from rosbags.rosbag2 import Reader
+from rosbags.rosbag2.errors import ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import get_typestore, Stores
 import yaml
@@ -56,8 +64,9 @@ DRIVER_TOPICS = {
     'rate_command': TWIST_STAMPED,
     'diagnostics': DIAGNOSTIC_ARRAY,
 }
-STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+STORAGES = ('mcap', 'sqlite3')
 BAG_VERSION = 9  # the rosbag2 metadata version of ROS 2 Jazzy
+ROS_DISTRO = 'jazzy'  # the message types and hashes written are Jazzy's
 INFINITE_NS = 2 ** 63 - 1  # RMW_DURATION_INFINITE
 
 # Fixed-layout message types: (field, kind) in CDR order. Kinds: 'time' (int32 sec, uint32
@@ -73,6 +82,8 @@ LAYOUTS = {
 }
 
 _MCAP_MAGIC = b'\x89MCAP0\r\n'
+_MCAP_CHUNK_BYTES = 768 * 1024  # the mcap C++ writer's default chunk size
+_MESSAGE_HEADER_STRUCT = struct.Struct('<HIQQ')  # channel, sequence, log time, publish time
 _MCAP_RECORD = struct.Struct('<BQ')  # opcode, content length
 _MCAP_CHUNK = struct.Struct('<QQQII')  # start, end, uncompressed size, crc, compression length
 _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x04, 0x05, 0x06, 0x07
@@ -82,6 +93,31 @@ _MESSAGE_RECORD = np.dtype({  # a Message record up to its data
     'names': ['opcode', 'length', 'channel', 'sequence', 'log_time', 'publish_time'],
     'formats': ['u1', '<u8', '<u2', '<u4', '<u8', '<u8'],
     'offsets': [0, 1, 9, 11, 15, 23], 'itemsize': 31})
+
+
+# The tables of rosbag2 Jazzy's sqlite3 storage, in its words (sqlite_master keeps them).
+_SQLITE3_SCHEMA = (
+    'CREATE TABLE schema(schema_version INTEGER PRIMARY KEY,ros_distro TEXT NOT NULL);',
+    'CREATE TABLE metadata(id INTEGER PRIMARY KEY,metadata_version INTEGER NOT NULL,'
+    'metadata TEXT NOT NULL);',
+    'CREATE TABLE topics(id INTEGER PRIMARY KEY,name TEXT NOT NULL,type TEXT NOT NULL,'
+    'serialization_format TEXT NOT NULL,offered_qos_profiles TEXT NOT NULL,'
+    'type_description_hash TEXT NOT NULL);',
+    'CREATE TABLE message_definitions(id INTEGER PRIMARY KEY,topic_type TEXT NOT NULL,'
+    'encoding TEXT NOT NULL,encoded_message_definition TEXT NOT NULL,'
+    'type_description_hash TEXT NOT NULL);',
+    'CREATE TABLE messages(id INTEGER PRIMARY KEY,topic_id INTEGER NOT NULL,'
+    'timestamp INTEGER NOT NULL, data BLOB NOT NULL);',
+    'CREATE INDEX timestamp_idx ON messages (timestamp ASC);',
+)
+# How rosbag2 finds the types a .msg file uses.
+_MSG_FIELD_TYPE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
+_PRIMITIVE_TYPES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16',
+                    'uint16', 'int32', 'uint32', 'int64', 'uint64', 'string'}
+try:
+    VERSION = package_metadata.version('kraft_master_driver')
+except package_metadata.PackageNotFoundError:
+    VERSION = 'from source'
 
 
 class SessionError(Exception):
@@ -122,8 +158,252 @@ def qos_profile(reliability='reliable', durability='volatile', history='unknown'
         raise ValueError(f'unknown QoS policy value {error}') from None
 
 
+def _qos_dicts(profiles):
+    """Return QoS profiles as rosbag2 (metadata version 9) writes them in YAML."""
+    def duration(value):
+        return {'sec': value.sec, 'nsec': value.nsec}
+    return [{'history': qos.history.name.lower(), 'depth': qos.depth,
+             'reliability': qos.reliability.name.lower(),
+             'durability': qos.durability.name.lower(), 'deadline': duration(qos.deadline),
+             'lifespan': duration(qos.lifespan), 'liveliness': qos.liveliness.name.lower(),
+             'liveliness_lease_duration': duration(qos.liveliness_lease_duration),
+             'avoid_ros_namespace_conventions': qos.avoid_ros_namespace_conventions}
+            for qos in profiles]
+
+
+def _dump_yaml(value):
+    return yaml.safe_dump(value, sort_keys=False, default_flow_style=False).rstrip('\n')
+
+
+def _share_directory(package):
+    """Return the share directory of an installed ROS package, as the ament index finds it."""
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]
+    for prefix in filter(None, prefixes):
+        if (Path(prefix) / 'share/ament_index/resource_index/packages' / package).exists():
+            return Path(prefix) / 'share' / package
+    raise LookupError(package)
+
+
+def _msg_text(name, seen):
+    """Return the .msg text of `name` (pkg/Type) followed by those of the types it uses."""
+    package, _, type_name = name.partition('/')
+    text = (_share_directory(package) / 'msg' / f'{type_name.removeprefix("msg/")}.msg'
+            ).read_text(encoding='utf-8')
+    used = {used if '/' in used else f'{package}/{used}'
+            for used in _MSG_FIELD_TYPE.findall(text) if used not in _PRIMITIVE_TYPES}
+    for dependency in sorted(used - seen):
+        seen.add(dependency)
+        text += f'\n{"=" * 80}\nMSG: {dependency}\n{_msg_text(dependency, seen)}'
+    return text
+
+
+@functools.cache
+def message_definition(msgtype):
+    """
+    Return (encoding, text) of a message type's full definition as rosbag2 Jazzy stores it.
+
+    That is the type's .msg file from its package's share directory, then the .msg file of
+    each type it uses, depth first, each after a line of '=' and 'MSG: pkg/Type'. Where the
+    files are not installed, the definition the rosbags type store generates (no comments).
+    """
+    try:
+        return 'ros2msg', _msg_text(msgtype.replace('/msg/', '/'), set())
+    except (OSError, LookupError):
+        return 'ros2msg', typestore().generate_msgdef(msgtype, ros_version=2)[0]
+
+
+def _record_header(opcode, length):
+    return _MCAP_RECORD.pack(opcode, length)
+
+
+def _record(opcode, body):
+    return _MCAP_RECORD.pack(opcode, len(body)) + body
+
+
+def _string(text):
+    data = text.encode()
+    return struct.pack('<I', len(data)) + data
+
+
+def _string_map(pairs):
+    data = b''.join(_string(key) + _string(value) for key, value in pairs)
+    return struct.pack('<I', len(data)) + data
+
+
+class _McapStorage:
+    """An MCAP file as rosbag2 Jazzy's mcap plugin writes it: ros2 profile, plain chunks."""
+
+    extension = '.mcap'
+
+    def __init__(self, path):
+        self.file = open(path, 'xb')
+        self.file.write(_MCAP_MAGIC + _record(0x01, _string('ros2') +
+                                              _string(f'kraft_master_driver {VERSION}')))
+        self.schemas, self.channels, self.chunk_indexes = {}, {}, []
+        self.channel_counts = collections.Counter()
+        self.time_span = [INFINITE_NS, 0]
+        self._new_chunk()
+
+    def _new_chunk(self):
+        self.chunk = bytearray()
+        self.chunk_span = [INFINITE_NS, 0]
+        self.chunk_index = collections.defaultdict(list)  # channel id -> [log time, offset]
+
+    def add_topic(self, topic_id, topic):
+        if topic.msgtype not in self.schemas:
+            self.schemas[topic.msgtype] = _record(0x03, struct.pack(
+                '<H', len(self.schemas) + 1) + _string(topic.msgtype) + _string(
+                topic.encoding) + _string(topic.definition))
+            self.chunk += self.schemas[topic.msgtype]
+        schema_id = list(self.schemas).index(topic.msgtype) + 1
+        self.channels[topic_id] = _record(0x04, struct.pack('<HH', topic_id, schema_id) + (
+            _string(topic.name) + _string('cdr') + _string_map(
+                (('offered_qos_profiles', topic.qos_yaml),
+                 ('topic_type_hash', topic.type_hash)))))
+        self.chunk += self.channels[topic_id]
+
+    def write(self, topic_id, log_time, publish_time, data):
+        self.chunk_index[topic_id] += (log_time, len(self.chunk))
+        self.chunk += _record_header(0x05, 22 + len(data))
+        self.chunk += _MESSAGE_HEADER_STRUCT.pack(topic_id, 0, log_time, publish_time)
+        self.chunk += data
+        self.channel_counts[topic_id] += 1
+        for span in (self.chunk_span, self.time_span):
+            span[0], span[1] = min(span[0], log_time), max(span[1], log_time)
+        if len(self.chunk) >= _MCAP_CHUNK_BYTES:
+            self._write_chunk()
+
+    def _write_chunk(self):
+        if not self.chunk_index:
+            return
+        start = self.file.tell()
+        self.file.write(_record_header(0x06, 8 * 3 + 4 + 4 + 8 + len(self.chunk)))
+        self.file.write(struct.pack('<QQQI', *self.chunk_span, len(self.chunk), 0))
+        self.file.write(_string('') + struct.pack('<Q', len(self.chunk)))
+        self.file.write(self.chunk)
+        end = self.file.tell()
+        index_offsets = []
+        for channel_id, entries in self.chunk_index.items():
+            index_offsets.append(struct.pack('<HQ', channel_id, self.file.tell()))
+            pairs = struct.pack(f'<{len(entries)}Q', *entries)
+            self.file.write(_record(0x07, struct.pack('<HI', channel_id, len(pairs)) + pairs))
+        offsets = b''.join(index_offsets)
+        self.chunk_indexes.append(_record(0x08, struct.pack(
+            '<QQQQI', *self.chunk_span, start, end - start, len(offsets)) + offsets + struct.pack(
+            '<Q', self.file.tell() - end) + _string('') + struct.pack(
+            '<QQ', len(self.chunk), len(self.chunk))))
+        self._new_chunk()
+
+    def close(self, metadata):
+        self._write_chunk()
+        metadata_start = self.file.tell()
+        self.file.write(_record(0x0C, _string('rosbag2') + _string_map(
+            (('serialized_metadata', metadata),))))
+        metadata_index = _record(0x0D, struct.pack(
+            '<QQ', metadata_start, self.file.tell() - metadata_start) + _string('rosbag2'))
+        self.file.write(_record(0x0F, struct.pack('<I', 0)))
+        summary_start = self.file.tell()
+        span = self.time_span if self.channel_counts else [0, 0]
+        counts = b''.join(struct.pack('<HQ', channel_id, self.channel_counts[channel_id])
+                          for channel_id in self.channels)
+        groups = [(0x03, list(self.schemas.values())), (0x04, list(self.channels.values())),
+                  (0x08, self.chunk_indexes), (0x0D, [metadata_index]),
+                  (0x0B, [_record(0x0B, struct.pack(
+                      '<QHIIIIQQI', sum(self.channel_counts.values()), len(self.schemas),
+                      len(self.channels), 0, 1, len(self.chunk_indexes), *span,
+                      len(counts)) + counts)])]
+        summary, offsets = bytearray(), bytearray()
+        for opcode, records in groups:
+            if records:
+                group = b''.join(records)
+                offsets += _record(0x0E, struct.pack('<BQQ', opcode,
+                                                     summary_start + len(summary), len(group)))
+                summary += group
+        footer = _record_header(0x02, 20) + struct.pack(
+            '<QQ', summary_start, summary_start + len(summary))
+        crc = zlib.crc32(summary + offsets + footer)
+        self.file.write(summary + offsets + footer + struct.pack('<I', crc) + _MCAP_MAGIC)
+        self.file.close()
+
+    def abort(self):
+        self.file.close()
+
+
+class _Sqlite3Storage:
+    """A .db3 file with the schema (version 4) of rosbag2 Jazzy's sqlite3 plugin."""
+
+    extension = '.db3'
+    batch = 1000  # messages per transaction
+
+    def __init__(self, path):
+        if path.exists():
+            raise FileExistsError(f'{path} exists')
+        self.database = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
+        self.database.execute('PRAGMA journal_mode=MEMORY;')
+        self.database.execute('PRAGMA synchronous=OFF;')
+        self.database.execute('BEGIN')
+        for statement in _SQLITE3_SCHEMA:
+            self.database.execute(statement)
+        self.database.execute('INSERT INTO schema (schema_version, ros_distro) VALUES (?, ?)',
+                              (4, ROS_DISTRO))
+        self.types = set()
+        self.pending = []
+
+    def add_topic(self, topic_id, topic):
+        self.database.execute(
+            'INSERT INTO topics(id, name, type, serialization_format, offered_qos_profiles, '
+            'type_description_hash) VALUES (?, ?, ?, ?, ?, ?)',
+            (topic_id, topic.name, topic.msgtype, 'cdr', topic.qos_yaml, topic.type_hash))
+        if topic.msgtype not in self.types:
+            self.types.add(topic.msgtype)
+            self.database.execute(
+                'INSERT INTO message_definitions (topic_type, encoding, '
+                'encoded_message_definition, type_description_hash) VALUES (?, ?, ?, ?)',
+                (topic.msgtype, topic.encoding, topic.definition, topic.type_hash))
+
+    def write(self, topic_id, log_time, _publish_time, data):
+        self.pending.append((log_time, topic_id, data))
+        if len(self.pending) >= self.batch:
+            self._flush()
+
+    def _flush(self):
+        self.database.executemany(
+            'INSERT INTO messages (timestamp, topic_id, data) VALUES (?, ?, ?);', self.pending)
+        self.database.execute('COMMIT')
+        self.database.execute('BEGIN')
+        self.pending = []
+
+    def close(self, metadata):
+        self._flush()
+        self.database.execute('INSERT INTO metadata (metadata_version, metadata) VALUES (?, ?)',
+                              (BAG_VERSION, metadata))
+        self.database.execute('COMMIT')
+        self.database.close()
+
+    def abort(self):
+        self.database.close()
+
+
+_STORAGE_CLASSES = {'mcap': _McapStorage, 'sqlite3': _Sqlite3Storage}
+
+
+class _Topic(NamedTuple):
+    name: str
+    msgtype: str
+    offered_qos: list
+    qos_yaml: str
+    type_hash: str
+    encoding: str
+    definition: str
+
+
 class BagRecorder:
-    """Writes raw CDR messages into a new rosbag2 directory; thread-safe; a context manager."""
+    """
+    Writes raw CDR messages into a new rosbag2 directory as rosbag2 Jazzy writes it.
+
+    The bag `NAME/` holds `NAME_0.mcap` (or `NAME_0.db3`) and metadata.yaml. Thread-safe; a
+    context manager.
+    """
 
     def __init__(self, path, storage='mcap'):
         """Create the bag directory `path` (it must not exist) with storage mcap or sqlite3."""
@@ -132,41 +412,103 @@ class BagRecorder:
         self.path = Path(path)
         self.storage = storage
         self.counts = {}
-        self._connections = {}
+        self._topics = {}  # name -> (topic id, _Topic)
         self._lock = threading.Lock()
+        self._time_span = [INFINITE_NS, 0]
+        self.file_name = f'{self.path.name}_0{_STORAGE_CLASSES[storage].extension}'
         try:
-            self._writer = Writer(self.path, version=BAG_VERSION,
-                                  storage_plugin=STORAGES[storage])
-            self._writer.open()
-        except WriterError as error:
+            self.path.mkdir(parents=True)
+        except OSError as error:
+            raise SessionError(f'{self.path}: cannot create the bag: {error.strerror}') from None
+        try:
+            self._storage = _STORAGE_CLASSES[storage](self.path / self.file_name)
+        except (OSError, sqlite3.Error) as error:
             raise SessionError(f'{self.path}: cannot create the bag: {error}') from None
 
-    def add_topic(self, topic, msgtype, offered_qos=()):
-        """Declare `topic` (absolute name) of `msgtype` and the QoS profiles offered on it."""
+    def add_topic(self, topic, msgtype, offered_qos=(), type_hash=None):
+        """
+        Declare `topic` (absolute name) of `msgtype` and the QoS profiles offered on it.
+
+        type_hash is the RIHS01 type description hash the publishers report (rosbag2 stores
+        that); by default the hash of msgtype in the Jazzy type store (the same, REP 2011).
+        """
         if msgtype not in typestore().types:
             raise ValueError(f'{topic}: unknown message type {msgtype!r}')
+        encoding, definition = message_definition(msgtype)
+        entry = _Topic(topic, msgtype, list(offered_qos), _dump_yaml(_qos_dicts(offered_qos)),
+                       typestore().hash_rihs01(msgtype) if type_hash is None else type_hash,
+                       encoding, definition)
         with self._lock:
-            if topic in self._connections:
+            if topic in self._topics:
                 raise ValueError(f'{topic}: topic added twice')
-            self._connections[topic] = self._writer.add_connection(
-                topic, msgtype, typestore=typestore(), offered_qos_profiles=list(offered_qos))
+            self._topics[topic] = (len(self._topics) + 1, entry)
+            self._storage.add_topic(len(self._topics), entry)
             self.counts[topic] = 0
 
-    def write(self, topic, timestamp_ns, data):
-        """Write one message's raw CDR bytes, received at `timestamp_ns` (ns since the epoch)."""
+    def write(self, topic, timestamp_ns, data, publish_time_ns=None):
+        """
+        Write one message's raw CDR bytes, received at `timestamp_ns` (ns since the epoch).
+
+        publish_time_ns is when the publisher sent it (the source timestamp; MCAP stores it
+        as the publish time); by default the receive time.
+        """
+        log_time = int(timestamp_ns)
+        publish_time = log_time if publish_time_ns is None else int(publish_time_ns)
         with self._lock:
-            connection = self._connections.get(topic)
-            if connection is None:
+            entry = self._topics.get(topic)
+            if entry is None:
                 raise ValueError(f'{topic}: not added to the bag; call add_topic first')
-            self._writer.write(connection, int(timestamp_ns), bytes(data))
+            if self._storage is None:
+                raise ValueError(f'{self.path}: the bag is closed')
+            self._storage.write(entry[0], log_time, publish_time, bytes(data))
             self.counts[topic] += 1
+            span = self._time_span
+            span[0], span[1] = min(span[0], log_time), max(span[1], log_time)
+
+    def metadata(self):
+        """Return the map rosbag2 writes under rosbag2_bagfile_information for this bag."""
+        count = sum(self.counts.values())
+        start = self._time_span[0] if count else 0
+        duration = self._time_span[1] - start if count else 0
+        return {
+            'version': BAG_VERSION,
+            'storage_identifier': self.storage,
+            'duration': {'nanoseconds': duration},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': count,
+            'topics_with_message_count': [
+                {'topic_metadata': {
+                    'name': topic.name, 'type': topic.msgtype, 'serialization_format': 'cdr',
+                    'offered_qos_profiles': _qos_dicts(topic.offered_qos),
+                    'type_description_hash': topic.type_hash},
+                 'message_count': self.counts[topic.name]}
+                for _, topic in self._topics.values()],
+            'compression_format': '',
+            'compression_mode': '',
+            'relative_file_paths': [self.file_name],
+            'files': [{'path': self.file_name,
+                       'starting_time': {'nanoseconds_since_epoch': start},
+                       'duration': {'nanoseconds': duration}, 'message_count': count}],
+            'custom_data': None,
+            'ros_distro': ROS_DISTRO,
+        }
 
     def close(self):
-        """Write the metadata and close the bag; safe to call twice."""
+        """Write the storage's index and metadata, then metadata.yaml; safe to call twice."""
         with self._lock:
-            if self._writer is not None:
-                self._writer.close()
-                self._writer = None
+            if self._storage is None:
+                return
+            storage, self._storage = self._storage, None
+            metadata = self.metadata()
+            try:
+                storage.close(_dump_yaml(metadata))
+                temporary = self.path / 'metadata.yaml.tmp'
+                temporary.write_text(_dump_yaml({'rosbag2_bagfile_information': metadata}) +
+                                     '\n', encoding='utf-8')
+                temporary.replace(self.path / 'metadata.yaml')
+            except (OSError, sqlite3.Error) as error:
+                storage.abort()
+                raise SessionError(f'{self.path}: cannot close the bag: {error}') from None
 
     def __enter__(self):
         """Return the recorder."""
@@ -701,19 +1043,26 @@ def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise
 
 
 def write_samples(recorder, namespace, samples, joint_names=None, frame_id='kraft_master_base',
-                  diagnostics_every=1000, receive_delay_ns=200_000):
+                  diagnostics_every=1000, receive_delay_ns=200_000, diagnostics_topic=None):
     """
     Write `samples` into `recorder` as the driver's topics under `namespace`.
 
     Each message is serialised by rosbags: joint_states, pose, pots and wrench per sample
     (received receive_delay_ns after their stamp), and a diagnostics message every
-    `diagnostics_every` samples. Topics not yet in the recorder are added.
+    `diagnostics_every` samples: on `<namespace>/diagnostics`, the status named by the bare
+    node name, or on `diagnostics_topic` (e.g. /diagnostics) by the node's full name. A late
+    cycle and a link timeout are counted every 5000 samples. Topics not yet in the recorder
+    are added.
     """
     store = typestore()
     types = store.types
     names = list(joint_names or kinematics.JOINT_NAMES)
     pot_names = [f'pot{i}' for i in range(1, 7)]
     topics = {name: f'{namespace}/{name}' for name in DRIVER_TOPICS}
+    status_name = 'kraft_master_node: Kraft Master'
+    if diagnostics_topic:
+        topics['diagnostics'] = diagnostics_topic
+        status_name = f'{namespace}/{status_name}'
     for name in ('joint_states', 'pose', 'pots', 'wrench', 'diagnostics'):
         if topics[name] not in recorder.counts:
             recorder.add_topic(topics[name], DRIVER_TOPICS[name], [qos_profile()])
@@ -744,12 +1093,13 @@ def write_samples(recorder, namespace, samples, joint_names=None, frame_id='kraf
                 force=vector(x=fx, y=fy, z=fz), torque=vector(x=mx, y=my, z=mz)))),
         )
         if i % diagnostics_every == diagnostics_every - 1:
-            values = [key_value(key='loop rate (Hz)', value='1000.0'),
-                      key_value(key='link cycles', value=str(i + 1)),
-                      key_value(key='link timeouts', value=str(i // 5000))]
+            values = [key_value(key=key, value=value) for key, value in (
+                ('loop rate (Hz)', '1000.0'), ('late cycles', str(i // 5000)),
+                ('missed cycles', '0'), ('link round trip median (ms)', '0.420'),
+                ('link cycles', str(i + 1)), ('link timeouts', str(i // 5000)))]
             messages += (('diagnostics', types[DIAGNOSTIC_ARRAY](header=header, status=[
-                status_type(level=0, name=f'kraft_master_node{namespace}',
-                            message='running', hardware_id='sim', values=values)])),)
+                status_type(level=0, name=status_name, message='running', hardware_id='sim',
+                            values=values)])),)
         for name, message in messages:
             data = store.serialize_cdr(message, message.__msgtype__)
             recorder.write(topics[name], received, data)

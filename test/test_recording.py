@@ -1,22 +1,32 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""A live session of the installed driver, recorded into rosbag2 (mcap and sqlite3) and read."""
+"""A live session of the installed driver recorded into rosbag2 (mcap, sqlite3) and read back."""
+import collections
 import csv
+import re
+import signal
+import sqlite3
+import subprocess
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import DriverProcess, next_domain_id, wait_for
+from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver import kinematics, report, session
+from kraft_master_driver import kinematics, record, report, session
 from kraft_master_driver.calibration import ArmCalibration
 from kraft_master_driver.simulator import SimulatedKraftMaster
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import JointState
+from test_bag_format import generated_type_hash
 
 pytestmark = pytest.mark.integration
 
@@ -68,7 +78,8 @@ class LiveRecorder:
     def start(self):
         """Wait for the driver's publishers, then subscribe to every topic, raw."""
         wait_for(lambda: all(self.node.count_publishers(topic) for topic in TOPICS) and
-                 self.wrench_pub.get_subscription_count() > 0, spin=lambda: self.spin(0.05))
+                 self.wrench_pub.get_subscription_count() > 0, timeout=120.0,
+                 spin=lambda: self.spin(0.05))
         for topic, msg_type in TOPICS.items():
             self.offered[topic] = [offered_qos(info) for info
                                    in self.node.get_publishers_info_by_topic(topic)]
@@ -122,7 +133,7 @@ def recorded(install_prefix, tmp_path_factory):
             recorder.spin(0.005)
             states = recorder.received['/joint_states']
             return len(recorder.received['/diagnostics']) >= 2 and len(states) >= 400
-        wait_for(publish_and_check, timeout=30.0)
+        wait_for(publish_and_check, timeout=120.0)
     finally:
         recorder.close()
         driver.kill()
@@ -211,3 +222,172 @@ def test_report_of_the_recording(recorded, tmp_path, capsys):
     efforts = np.array([[float(x) for x in row[13:19]] for row in rows])
     assert np.abs(efforts).max() > 0.01
     assert (tmp_path / 'mcap_report.png').stat().st_size > 10_000
+
+
+class RecordCommand:
+    """The installed kraft_master_record, its output collected line by line."""
+
+    def __init__(self, prefix, domain_id, args):
+        """Start it with `args`."""
+        self.process = subprocess.Popen(
+            [str(executable(prefix, 'kraft_master_record')), *args],
+            env=installed_env(prefix, domain_id), stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)
+        self.lines = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self):
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip('\n'))
+
+    def counts(self, prefix=''):
+        """Return {topic: count} of the last status line that starts with `prefix`."""
+        lines = [line for line in self.lines if ' messages' in line and line.startswith(prefix)]
+        counts = lines[-1].partition(' messages (')[2] if lines else ''
+        return {topic: int(count) for topic, count in re.findall(r'(/\S+) (\d+)', counts)}
+
+    def stop(self, sig):
+        """Send `sig`; return the exit code."""
+        self.process.send_signal(sig)
+        self.process.wait(timeout=60)
+        self.reader.join(timeout=10)
+        return self.process.returncode
+
+    def kill(self):
+        """Make sure the process is gone."""
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(timeout=10)
+
+
+@pytest.fixture(scope='module')
+def right_arm(install_prefix):
+    """Run the installed driver in /right on a simulated device; return (domain, hashes)."""
+    domain_id = next_domain_id()
+    simulator = SimulatedKraftMaster(arm='right', operator='sweep', operator_period=1.0)
+    driver = DriverProcess(install_prefix, domain_id, [
+        ('port', simulator.start()), ('arm', 'right'), ('loop_rate_hz', 200.0)],
+        namespace='/right')
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node('type_hash_probe', context=context)
+    try:
+        infos = wait_for(lambda: node.get_publishers_info_by_topic('/right/joint_states'),
+                         timeout=60.0)
+        yield domain_id, {str(info.topic_type_hash) for info in infos}
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        driver.kill()
+        simulator.stop()
+
+
+ARM_TOPICS = ['/right/joint_states', '/right/pose', '/right/pots']
+
+
+@pytest.mark.parametrize('sig, storage, selection', [
+    (signal.SIGINT, 'mcap', ['--namespace', 'right']),
+    (signal.SIGTERM, 'mcap', ['--namespace', 'right']),
+    (signal.SIGTERM, 'sqlite3', ARM_TOPICS),
+    (signal.SIGINT, 'sqlite3', ['-a'])])
+def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_path, sig,
+                                              storage, selection):
+    domain_id, endpoint_hashes = right_arm
+    bag = tmp_path / 'arm_session'
+    recorder = RecordCommand(install_prefix, domain_id, [
+        *selection, '-o', str(bag), '-s', storage, '--status-period', '0.2'])
+    try:
+        wait_for(lambda: recorder.counts().get('/right/joint_states', 0) >= 300 and (
+            selection == ARM_TOPICS or
+            any(recorder.counts().get(t) for t in ('/diagnostics', '/right/diagnostics'))),
+            timeout=90.0)
+        assert recorder.stop(sig) == 0, '\n'.join(recorder.lines)
+    finally:
+        recorder.kill()
+    output = '\n'.join(recorder.lines)
+    assert output.startswith(f'Recording into {bag} ({storage}): ' + {
+        '-a': 'every topic', '--namespace': '/diagnostics '}.get(
+            selection[0], ' '.join(ARM_TOPICS)))
+    assert 'Subscribed to /right/pots (sensor_msgs/msg/JointState)' in output
+    closed = recorder.counts(prefix=f'Closed {bag}: ')
+    assert closed['/right/joint_states'] >= 300
+    if selection == ARM_TOPICS:
+        assert sorted(closed) == ARM_TOPICS
+    if selection == ['-a']:
+        assert {'/rosout', '/parameter_events', *ARM_TOPICS} <= set(closed)
+    published = {topic: count for topic, count in closed.items() if count}
+    assert sorted(p.name for p in bag.iterdir()) == sorted(
+        ['metadata.yaml', f'arm_session_0.{"mcap" if storage == "mcap" else "db3"}'])
+
+    store = session.typestore()
+    read = collections.Counter()
+    with Reader(bag) as reader:
+        assert {c.topic: c.msgcount for c in reader.connections} == closed
+        for connection, _, data in reader.messages():
+            store.deserialize_cdr(data, connection.msgtype)
+            read[connection.topic] += 1
+    assert read == published
+    (endpoint_hash,) = endpoint_hashes
+    assert endpoint_hash == generated_type_hash(session.JOINT_STATE)
+
+    if storage == 'sqlite3':
+        database = sqlite3.connect(bag / 'arm_session_0.db3')
+        hashes = dict(database.execute('SELECT name, type_description_hash FROM topics'))
+        database.close()
+        assert hashes['/right/joint_states'] == endpoint_hash
+        return
+    with open(bag / 'arm_session_0.mcap', 'rb') as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        counts = collections.Counter()
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            counts[channel.topic] += 1
+            if channel.topic == '/right/joint_states':
+                assert channel.metadata['topic_type_hash'] == endpoint_hash
+                assert list(decoded.name) == list(kinematics.JOINT_NAMES)
+                stamp = decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec
+                # Stamped at the sample, sent (publish time), then received (log time).
+                assert stamp <= message.publish_time <= message.log_time
+    assert counts == published
+
+
+def test_record_selects_the_driver_topics_of_each_namespace():
+    assert record.driver_topics(['right', 'left']) == ['/diagnostics'] + [
+        f'/{arm}/{name}' for arm in ('left', 'right') for name in sorted(session.DRIVER_TOPICS)]
+    assert record.driver_topics(['/']) == ['/diagnostics', '/joint_states', '/pose', '/pots',
+                                           '/rate_command', '/wrench']
+
+
+def endpoint(reliability, durability):
+    """Return the TopicEndpointInfo of a publisher offering `reliability` and `durability`."""
+    return TopicEndpointInfo(qos_profile=QoSProfile(depth=10, reliability=reliability,
+                                                    durability=durability))
+
+
+def test_record_subscribes_with_what_every_publisher_offers():
+    reliable, best_effort = ReliabilityPolicy.RELIABLE, ReliabilityPolicy.BEST_EFFORT
+    volatile, latched = DurabilityPolicy.VOLATILE, DurabilityPolicy.TRANSIENT_LOCAL
+    for offered, expected in (
+            ([(reliable, volatile)], (reliable, volatile)),
+            ([(reliable, latched), (reliable, latched)], (reliable, latched)),
+            ([(reliable, volatile), (best_effort, latched)], (best_effort, volatile)),
+            ([(best_effort, volatile)], (best_effort, volatile))):
+        qos = record.subscription_qos([endpoint(*policies) for policies in offered])
+        assert (qos.reliability, qos.durability) == expected
+        assert qos.depth == record.SUBSCRIPTION_DEPTH
+
+
+def test_record_command_refuses_an_existing_bag_and_answers_help(install_prefix, tmp_path):
+    bag = tmp_path / 'taken'
+    bag.mkdir()
+    (bag / 'keep').write_text('kept')
+    env = installed_env(install_prefix, next_domain_id())
+    command = str(executable(install_prefix, 'kraft_master_record'))
+    result = subprocess.run([command, '-o', str(bag)], env=env, capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 1
+    assert result.stderr.strip().count('\n') == 0 and str(bag) in result.stderr
+    assert (bag / 'keep').read_text() == 'kept' and len(list(bag.iterdir())) == 1
+    result = subprocess.run([command, '--help'], env=env, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0 and 'usage: kraft_master_record' in result.stdout

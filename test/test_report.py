@@ -3,14 +3,13 @@
 """Reading recorded sessions back (session.py) and kraft_master_report on synthetic bags."""
 import csv
 import math
-from types import SimpleNamespace
 
 from kraft_master_driver import kinematics, report, session
 from kraft_master_driver.calibration import ArmCalibration
 from matplotlib.image import imread
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
 STORE = session.typestore()
@@ -128,7 +127,8 @@ def write_bag(path, storage, arms, compression=None, samples=SAMPLES):
         return written
     plain = path.with_name(path.name + '_plain')
     written = write_bag(plain, storage, arms, samples=samples)
-    writer = Writer(path, version=session.BAG_VERSION, storage_plugin=session.STORAGES[storage])
+    writer = Writer(path, version=session.BAG_VERSION,
+                    storage_plugin=StoragePlugin[storage.upper()])
     writer.set_compression(compression, CompressionFormat.ZSTD)
     with Reader(plain) as reader, writer:
         connections = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
@@ -350,7 +350,7 @@ def test_storage_file_of_a_bag_reads_as_the_bag(tmp_path, capsys):
     bag = tmp_path / 'bag'
     write_bag(bag, 'mcap', {'': ('right', 7)}, samples=300)
     (arm_from_directory,) = report.read_arms(bag)
-    (arm_from_file,) = report.read_arms(bag / 'bag.mcap', [''])
+    (arm_from_file,) = report.read_arms(bag / 'bag_0.mcap', [''])
     for field in ('stamp', 'position', 'pots', 'wrist', 'wrench'):
         np.testing.assert_array_equal(getattr(arm_from_file, field),
                                       getattr(arm_from_directory, field))
@@ -374,16 +374,105 @@ def test_session_without_samples_still_reports(tmp_path, capsys):
     assert names[0] == 'stamp_ns' and names[-1] == 'recal_qw' and len(stamps) == 0
 
 
-def test_each_arm_takes_its_own_status_from_the_shared_diagnostics_topic():
-    """The drivers publish on /diagnostics, their statuses named by the node's full name."""
-    def status(name, rate):
-        return SimpleNamespace(name=name, values=[SimpleNamespace(key='link timeouts', value='0'),
-                                                  SimpleNamespace(key='loop rate (Hz)',
-                                                                  value=rate)])
-    message = SimpleNamespace(status=[status('/left/kraft_master_node: left Kraft Master', '1'),
-                                      status('/right/kraft_master_node: right Kraft Master', '2'),
-                                      status('/kraft_master_node: right Kraft Master', '3')])
-    data = SimpleNamespace(log_time=np.array([7]), messages=[message])
-    for namespace, rate in (('/left', '1'), ('/right', '2'), ('', '3')):
-        ((time_ns, values),) = report._diagnostics(data, namespace)
-        assert (time_ns, values['loop rate (Hz)']) == (7, rate)
+def status(name, **values):
+    """Return a DiagnosticStatus named `name` with `values` (keys with _ for spaces)."""
+    return TYPES['diagnostic_msgs/msg/DiagnosticStatus'](
+        level=0, name=name, message='running', hardware_id='sim',
+        values=[TYPES['diagnostic_msgs/msg/KeyValue'](key=key, value=value)
+                for key, value in values.items()])
+
+
+def diagnostics_message(*statuses):
+    """Return the CDR bytes of a DiagnosticArray of `statuses`."""
+    message = TYPES[session.DIAGNOSTIC_ARRAY](
+        header=TYPES['std_msgs/msg/Header'](
+            stamp=TYPES['builtin_interfaces/msg/Time'](sec=0, nanosec=0), frame_id=''),
+        status=list(statuses))
+    return STORE.serialize_cdr(message, session.DIAGNOSTIC_ARRAY)
+
+
+def driver_values(errors, late, round_trip_ms):
+    """Return diagnostics values as the driver publishes them (a subset)."""
+    return {'late cycles': str(late), 'missed cycles': '0', 'link cycles': '5000',
+            'link replies': '4990', 'link clamped_commands': '7',
+            'link round trip median (ms)': f'{round_trip_ms:.3f}',
+            'link round trip max (ms)': f'{3 * round_trip_ms:.3f}',
+            'link timeouts': str(errors), 'link bad_crc': '0'}
+
+
+def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, capsys):
+    bag = tmp_path / 'two_arms'
+    with session.BagRecorder(bag, 'mcap') as recorder:
+        for namespace, arm, seed in (('/left', 'left', 1), ('/right', 'right', 2)):
+            session.write_samples(recorder, namespace,
+                                  session.simulate_samples(300, arm, seed=seed),
+                                  diagnostics_every=10_000)
+        recorder.add_topic('/diagnostics', session.DIAGNOSTIC_ARRAY)
+        for second in range(1, 6):
+            recorder.write('/diagnostics', 1_767_225_600_000_000_000 + second * 10**8,
+                           diagnostics_message(
+                               status('/left/kraft_master_node: left Kraft Master',
+                                      **driver_values(0, 0, 0.4)),
+                               status('/right/kraft_master_node: right Kraft Master',
+                                      **driver_values(second, 2 * second, 0.5)),
+                               status('/other_node: something', **{'link timeouts': '99'})))
+    left, right = report.read_arms(bag)
+    assert [len(arm.diagnostics) for arm in (left, right)] == [5, 5]
+    times, errors = report.link_errors(right.diagnostics)
+    # Error counts only: not progress, not what was done to commands, not milliseconds.
+    assert list(errors) == ['timeouts'] and errors['timeouts'].tolist() == [1, 2, 3, 4, 5]
+    assert report.link_errors(left.diagnostics)[1] == {}
+    assert report.main([str(bag), '--out', str(tmp_path / 'out')]) == 0
+    printed = capsys.readouterr().out
+    assert ('5 diagnostics messages: late cycles 0, missed cycles 0, link errors: none'
+            in printed)
+    assert ('5 diagnostics messages: late cycles 10, missed cycles 0, link errors: '
+            'timeouts 5' in printed)
+    assert 'missing' not in printed
+
+    def panel(figure, title):
+        return next(ax for ax in figure.axes if ax.get_title().startswith(title))
+
+    figure = report.draw(left)
+    assert [t.get_text() for t in panel(figure, 'link errors').texts] == [
+        'no link errors in 5 diagnostics messages']
+    assert [t.get_text() for t in panel(figure, 'late and missed').texts] == [
+        'no late or missed cycles in 5 diagnostics messages']
+    figure = report.draw(right)
+    errors_panel = panel(figure, 'link errors')
+    assert [t.get_text() for t in errors_panel.get_legend().get_texts()] == ['timeouts (5)']
+    assert max(line.get_ydata().max() for line in errors_panel.lines) == 5
+    assert [t.get_text() for t in panel(figure, 'late and missed').get_legend().get_texts()] == [
+        'late cycles (10)', 'missed cycles (0)']
+    round_trip = panel(figure, 'link round trip')
+    assert [t.get_text() for t in round_trip.get_legend().get_texts()] == [
+        'median', 'p99', 'max']
+    np.testing.assert_allclose(round_trip.lines[2].get_ydata(), 1.5)
+    elbow = panel(figure, 'elbow_pitch')
+    assert 'upper stop, moves with th2' in [t.get_text() for t in elbow.get_legend().get_texts()]
+
+
+def test_old_relative_diagnostics_are_read_from_the_arms_own_topic(tmp_path):
+    bag = tmp_path / 'old'
+    with session.BagRecorder(bag, 'sqlite3') as recorder:
+        session.write_samples(recorder, '/left', session.simulate_samples(2000, 'left', seed=1),
+                              diagnostics_every=500)
+        session.write_samples(recorder, '', session.simulate_samples(2000, 'right', seed=2),
+                              diagnostics_every=250)
+    root, left = report.read_arms(bag)
+    assert (root.namespace, len(root.diagnostics)) == ('', 8)
+    assert (left.namespace, len(left.diagnostics)) == ('/left', 4)
+
+
+def test_period_histogram_keeps_every_outlier_in_a_labelled_last_bin():
+    periods = np.concatenate([np.full(9998, 1.0), [69.9, 12.0]])
+    counts, edges = report.period_histogram(periods)
+    assert counts.sum() == len(periods)
+    assert counts[-1] == 2 and edges[-2] == pytest.approx(3.0)
+    arm = report.ArmData('', 'right', np.cumsum(np.r_[0, periods * 1e6]).astype(np.int64),
+                         *(np.full((len(periods) + 1, n), np.nan) for n in (6, 6, 6, 6, 3, 4)),
+                         np.empty(0, np.int64), np.empty((0, 6)), '', [], [], [])
+    (histogram,) = [ax for ax in report.draw(arm).axes
+                    if ax.get_title().startswith('loop period')]
+    assert [t.get_text() for t in histogram.texts] == ['2 over 3.00 ms\nmax 69.9 ms']
+    assert 'max 69.900 ms' in histogram.get_title()
