@@ -246,3 +246,60 @@ def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
                     if not any(provided_by(closure, module) for module in group)}
     assert not missing, 'imports requirements-dev.txt does not install:\n' + '\n'.join(
         sorted(missing))
+
+
+# -- the Makefile's set-up ------------------------------------------------------------------
+
+SETUP_FILES = ('Makefile', 'requirements.txt', 'requirements-dev.txt', 'setup.py', 'setup.cfg')
+STAGES = {'venv': 'creating .venv', 'run': 'requirements.txt', 'dev': 'requirements-dev.txt',
+          'package': '--editable .'}
+
+
+@pytest.fixture
+def checkout(tmp_path):
+    """Return a directory with the Makefile and the files its set-up depends on."""
+    for name in SETUP_FILES:
+        (tmp_path / name).write_bytes((REPO / name).read_bytes())
+    return tmp_path
+
+
+def planned_stages(directory, *args):
+    """Return the set-up stages `make -n ARGS` would run in `directory`."""
+    result = subprocess.run(['make', '-n', *args], cwd=directory, capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    return {stage for stage, text in STAGES.items() if text in result.stdout}
+
+
+def set_up(directory):
+    """Make `directory` look set up as `make test` leaves it: the venv's Python and stamps."""
+    python = directory / '.venv' / 'bin' / 'python'
+    python.parent.mkdir(parents=True)
+    python.symlink_to(sys.executable)
+    for stamp in ('requirements', 'requirements-dev', 'package'):
+        (directory / '.venv' / f'.installed-{stamp}').touch()
+
+
+def test_the_first_make_demo_installs_what_running_needs_only(checkout):
+    assert planned_stages(checkout, 'demo') == {'venv', 'run', 'package'}
+    assert planned_stages(checkout, 'test') == {'venv', 'run', 'dev', 'package'}
+
+
+@pytest.mark.parametrize('changed, target, stages', [
+    (None, 'demo', set()), (None, 'test', set()),
+    ('requirements.txt', 'demo', {'run'}), ('requirements.txt', 'test', {'run', 'dev'}),
+    ('requirements-dev.txt', 'demo', set()), ('requirements-dev.txt', 'test', {'dev'}),
+    ('setup.py', 'demo', {'package'}), ('setup.cfg', 'test', {'package'})])
+def test_later_runs_install_only_what_a_changed_file_asks_for(checkout, changed, target,
+                                                               stages):
+    set_up(checkout)
+    assert planned_stages(checkout, *(['-W', changed] if changed else []), target) == stages
+
+
+def test_without_python_make_says_what_to_install(checkout):
+    result = subprocess.run(['make', 'demo', 'PYTHON=no-such-python3'], cwd=checkout,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode != 0
+    assert result.stdout == ('make: no no-such-python3: install Python 3.10 or newer '
+                             '(Debian/Ubuntu: sudo apt install python3 python3-venv)\n')
+    assert not (checkout / '.venv').exists()
