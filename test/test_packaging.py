@@ -54,15 +54,15 @@ def test_every_console_script_is_installed_in_the_venv(name):
 def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path):
     process = subprocess.Popen(
         [str(BIN / name), '--help'], cwd=tmp_path, env=outside_env(), stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        output, _ = process.communicate(timeout=60)
+        output, errors = process.communicate(timeout=60)
     except subprocess.TimeoutExpired:
         process.kill()
-        output, _ = process.communicate()
-        pytest.fail(f'{name} --help ran on instead of printing its usage:\n{output}')
-    assert process.returncode == 0, output
-    assert output.startswith(f'usage: {name}'), output
+        output, errors = process.communicate()
+        pytest.fail(f'{name} --help ran on instead of printing its usage:\n{output}{errors}')
+    assert process.returncode == 0, output + errors
+    assert output.startswith(f'usage: {name}'), output + errors
 
 
 def readme_python_blocks():
