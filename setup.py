@@ -19,13 +19,15 @@ setup(
         ('share/' + package_name + '/urdf', glob('urdf/*.urdf')),
         ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
     ],
-    install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML'],
+    # What the package imports (requirements.txt adds ROS 2 Jazzy from PyPI; package.xml
+    # declares the same for rosdep).
+    install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML', 'matplotlib', 'rosbags',
+                      'lz4', 'backports.zstd; python_version < "3.14"'],
     zip_safe=True,
     maintainer='kraft_master_driver maintainers',
     maintainer_email='maintainers@kraft-master-driver.org',
     description='ROS 2 driver for the Kraft Master force-reflecting hand controller',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'kraft_master_node = kraft_master_driver.node:main',
@@ -36,6 +38,7 @@ setup(
             'kraft_master_calibrate = kraft_master_driver.calibrate:main',
             'kraft_master_demo = kraft_master_driver.demo:main',
             'kraft_master_record = kraft_master_driver.record:main',
+            'kraft_master_ctl = kraft_master_driver.ctl:main',
         ],
     },
 )
