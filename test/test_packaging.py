@@ -290,8 +290,8 @@ def test_the_first_make_demo_installs_what_running_needs_only(checkout):
     ('requirements.txt', 'demo', {'run'}), ('requirements.txt', 'test', {'run', 'dev'}),
     ('requirements-dev.txt', 'demo', set()), ('requirements-dev.txt', 'test', {'dev'}),
     ('setup.py', 'demo', {'package'}), ('setup.cfg', 'test', {'package'})])
-def test_later_runs_install_only_what_a_changed_file_asks_for(checkout, changed, target,
-                                                               stages):
+def test_later_runs_install_only_what_a_changed_file_asks_for(
+        checkout, changed, target, stages):
     set_up(checkout)
     assert planned_stages(checkout, *(['-W', changed] if changed else []), target) == stages
 
