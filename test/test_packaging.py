@@ -263,10 +263,16 @@ def checkout(tmp_path):
     return tmp_path
 
 
+def make(directory, *args):
+    """Run make in `directory` as a user's shell would (not as a sub-make of `make test`)."""
+    env = {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
+    return subprocess.run(['make', *args], cwd=directory, env=env, capture_output=True,
+                          text=True, timeout=60)
+
+
 def planned_stages(directory, *args):
     """Return the set-up stages `make -n ARGS` would run in `directory`."""
-    result = subprocess.run(['make', '-n', *args], cwd=directory, capture_output=True,
-                            text=True, timeout=60)
+    result = make(directory, '-n', *args)
     assert result.returncode == 0, result.stderr
     return {stage for stage, text in STAGES.items() if text in result.stdout}
 
@@ -290,15 +296,14 @@ def test_the_first_make_demo_installs_what_running_needs_only(checkout):
     ('requirements.txt', 'demo', {'run'}), ('requirements.txt', 'test', {'run', 'dev'}),
     ('requirements-dev.txt', 'demo', set()), ('requirements-dev.txt', 'test', {'dev'}),
     ('setup.py', 'demo', {'package'}), ('setup.cfg', 'test', {'package'})])
-def test_later_runs_install_only_what_a_changed_file_asks_for(checkout, changed, target,
-                                                               stages):
+def test_later_runs_install_only_what_a_changed_file_asks_for(
+        checkout, changed, target, stages):
     set_up(checkout)
     assert planned_stages(checkout, *(['-W', changed] if changed else []), target) == stages
 
 
 def test_without_python_make_says_what_to_install(checkout):
-    result = subprocess.run(['make', 'demo', 'PYTHON=no-such-python3'], cwd=checkout,
-                            capture_output=True, text=True, timeout=60)
+    result = make(checkout, 'demo', 'PYTHON=no-such-python3')
     assert result.returncode != 0
     assert result.stdout == ('make: no no-such-python3: install Python 3.10 or newer '
                              '(Debian/Ubuntu: sudo apt install python3 python3-venv)\n')
