@@ -18,6 +18,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
         ('share/' + package_name + '/urdf', glob('urdf/*.urdf')),
         ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
+        ('share/' + package_name + '/security', glob('security/*.policy.xml')),
     ],
     # What the package imports (requirements.txt adds ROS 2 Jazzy from PyPI; package.xml
     # declares the same for rosdep).
@@ -39,6 +40,7 @@ setup(
             'kraft_master_demo = kraft_master_driver.demo:main',
             'kraft_master_record = kraft_master_driver.record:main',
             'kraft_master_ctl = kraft_master_driver.ctl:main',
+            'kraft_master_link_emulator = kraft_master_driver.link_emulator:main',
         ],
     },
 )
