@@ -17,11 +17,12 @@ import time
 from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver import cdr, kinematics
 from kraft_master_driver.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
+from kraft_master_driver.passivity import LinkMonitor, MasterPort
 from kraft_master_driver.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.teleop import (
@@ -128,6 +129,8 @@ PARAMETERS = {
                          'random_walk or push.', choices=('hold', 'sweep', 'random_walk', 'push')),
     'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
                              low=0.0, high=100.0),
+    'passivity': Spec(False, 'Time-domain passivity control of the reflected wrench, fed by '
+                      'the slave_energy topic; false: plain J^T F.', read_only=False),
 }
 
 
@@ -218,6 +221,10 @@ class KraftMasterNode(Node):
             centre_stiffness=tuple(self.config['centre_stiffness']),
             centre_damping=tuple(self.config['centre_damping']))
         self.force.enabled = self.config['force_enabled_at_start']
+        self.master_port = MasterPort()
+        self.master_port.enabled = self.config['passivity']
+        self.slave_link = LinkMonitor()
+        self.slave_energy = (0.0, 0.0, 0.0)
 
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
@@ -234,6 +241,11 @@ class KraftMasterNode(Node):
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
             callback_group=TakenByLoopThread(),
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        # Energy in, out and dissipated at each port (J), each stamped when sent.
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'master_energy', state_qos,
+                                                event_callbacks=quiet)
+        self.create_subscription(Vector3Stamped, 'slave_energy', self._on_slave_energy,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.create_service(SetBool, 'enable_force', self._on_enable_force)
         self.create_service(Trigger, 'set_center', self._on_set_center)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -420,7 +432,7 @@ class KraftMasterNode(Node):
             output = self.force.compute(
                 estimate.rotation, estimate.jacobian, time.monotonic_ns(),
                 pose=None if self.centre is None else self._pose(), centre=self.centre,
-                cartesian_velocity=self.cartesian_velocity)
+                cartesian_velocity=self.cartesian_velocity, port=self.master_port)
             if output.state == STALE and self._last_force_state != STALE:
                 self.get_logger().warning(
                     f'no wrench for {self.config["wrench_timeout"]:g} s (wrench_timeout): '
@@ -506,6 +518,7 @@ class KraftMasterNode(Node):
         self._pose_cdr = cdr.StampedDoublesEncoder(base, 7)
         self._pots_cdr = cdr.JointStateEncoder(base, POT_NAMES, (6, 0, 0))
         self._twist_cdr = cdr.StampedDoublesEncoder(base, 6)
+        self._energy_cdr = cdr.StampedDoublesEncoder(base, 3)
 
     def _publish_state(self, result, estimate):
         sec, nanosec = divmod(result.receive_ns, 1_000_000_000)
@@ -517,6 +530,9 @@ class KraftMasterNode(Node):
                            *kinematics.rotation_to_quaternion(estimate.rotation))))
         self.pots_pub.publish(self._pots_cdr.encode(
             sec, nanosec, [float(count) for count in result.frame.pots], (), ()))
+        port = self.master_port
+        self.energy_pub.publish(self._energy_cdr.encode(
+            sec, nanosec, (port.energy_in, port.energy_out, port.dissipated)))
         if self.config['rate_command_enabled'] and self.centre is not None:
             linear, angular = rate_command(self._pose(), self.centre, *self.config['rate_gain'])
             self.rate_pub.publish(self._twist_cdr.encode(
@@ -532,6 +548,12 @@ class KraftMasterNode(Node):
         response.message = 'force output ' + ('enabled' if request.data else 'disabled')
         self.get_logger().info(response.message)
         return response
+
+    def _on_slave_energy(self, msg):
+        self.master_port.credit(msg.vector.x)
+        self.slave_energy = (msg.vector.x, msg.vector.y, msg.vector.z)
+        stamp = msg.header.stamp
+        self.slave_link.add(stamp.sec * 1_000_000_000 + stamp.nanosec, time.time_ns())
 
     def _on_set_center(self, request, response):
         pose = self._pose()
@@ -564,6 +586,8 @@ class KraftMasterNode(Node):
                                     for key, value in changes.items() if key in force_keys})
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
+        if 'passivity' in changes:
+            self.master_port.enabled = changes['passivity']
         if 'velocity_cutoff_hz' in changes:
             self.velocity.cutoff_hz = changes['velocity_cutoff_hz']
         self.config.update(changes)
@@ -604,6 +628,7 @@ class KraftMasterNode(Node):
         }
         values.update({f'link {key}': str(value) for key, value in device.items()})
         values.update({f'force {key}': str(value) for key, value in self.force.counters.items()})
+        values.update(self._passivity_values())
         status = DiagnosticStatus(
             name=f'{self.get_name()}: {self.arm} Kraft Master',
             hardware_id=str(self.config['port']),
@@ -613,6 +638,23 @@ class KraftMasterNode(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
+
+    def _passivity_values(self):
+        """Diagnostics of the channel: passivity, energies at each port, delay and loss."""
+        port = self.master_port
+        values = {'passivity': 'on' if port.enabled else 'off'}
+        for side, (energy_in, energy_out, dissipated) in (
+                ('master', (port.energy_in, port.energy_out, port.dissipated)),
+                ('slave', self.slave_energy)):
+            values.update({f'{side} energy in (J)': f'{energy_in:.4f}',
+                           f'{side} energy out (J)': f'{energy_out:.4f}',
+                           f'{side} energy dissipated (J)': f'{dissipated:.4f}'})
+        values['master energy observed (J)'] = f'{port.observed:.4f}'
+        link = self.slave_link.summary()
+        if link is not None:
+            values.update(_milliseconds('slave to master delay', link[:3]))
+            values['slave to master loss (%)'] = f'{100.0 * link[3]:.1f}'
+        return values
 
     # -- shutdown ------------------------------------------------------------------------
 

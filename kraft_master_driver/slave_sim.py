@@ -19,8 +19,10 @@ import sys
 import time
 from typing import NamedTuple
 
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.node import ParameterError, run_node
+from kraft_master_driver.passivity import LinkMonitor, SlavePort
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
@@ -269,6 +271,9 @@ PARAMETERS = {
     'box.damping': (20.0, 'Soft box damping (N*s/m).'),
     'base_frame': ('kraft_master_base', "frame_id of the wrench: the driver's base_frame."),
     'slave_frame': ('slave_world', 'frame_id of slave_pose.'),
+    'passivity': (False, "Position mode: time-domain passivity control of the master's "
+                  'motion, fed by the master_energy topic; false: follow it as it comes.'),
+    'drift_gain': (2.0, 'Rate at which passivity drift is given back with spare energy (1/s).'),
 }
 
 
@@ -303,6 +308,9 @@ class SlaveSimNode(Node):
                                 box if box.stiffness > 0.0 else None)
         except ValueError as error:
             raise ParameterError(f'parameter {error}') from None
+        self.port = SlavePort(_number('drift_gain', config['drift_gain']))
+        self.port.enabled = bool(config['passivity'])
+        self.pose_link = LinkMonitor()
         self.mode = config['mode']
         self.base_frame = config['base_frame']
         self.slave_frame = config['slave_frame']
@@ -314,6 +322,12 @@ class SlaveSimNode(Node):
         latest_only = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', state_qos)
         self.pose_pub = self.create_publisher(PoseStamped, 'slave_pose', state_qos)
+        # The slave port's energy in, out and dissipated (J), stamped as the wrench.
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', state_qos)
+        self.diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', state_qos)
+        self.create_subscription(Vector3Stamped, 'master_energy', self._on_master_energy,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.create_timer(1.0, self._publish_diagnostics)
         if self.mode == 'position':
             self.create_subscription(PoseStamped, 'pose', self._on_pose, latest_only)
         else:
@@ -337,7 +351,12 @@ class SlaveSimNode(Node):
                 raise ParameterError(f'parameter {name}: {error}') from None
         return values
 
+    def _on_master_energy(self, msg):
+        self.port.credit(msg.vector.x)
+
     def _on_pose(self, msg):
+        stamp = msg.header.stamp
+        self.pose_link.add(stamp.sec * 1_000_000_000 + stamp.nanosec, time.time_ns())
         p, q = msg.pose.position, msg.pose.orientation
         self.target = self.map.target((p.x, p.y, p.z))
         self.orientation = (q.x, q.y, q.z, q.w)
@@ -354,7 +373,11 @@ class SlaveSimNode(Node):
         elapsed, self.last_tick = min(now - self.last_tick, MAX_CATCH_UP), now
         force = np.zeros(3)
         if self.mode == 'position' and self.target is not None:
-            force = self.arm.advance(elapsed, target=self.target)
+            # What a real slave's bridge does: the master's motion goes through the passivity
+            # controller, and the servo tracks the passive command instead of the target.
+            command = self.port.step(self.target.tolist(), self.arm.contact_force().tolist(),
+                                     elapsed)
+            force = self.arm.advance(elapsed, target=np.array(command))
         elif self.mode == 'rate':
             linear = angular = np.zeros(3)
             if self.rate is not None and now - self.rate[2] <= self.timeout:
@@ -366,12 +389,37 @@ class SlaveSimNode(Node):
         f = wrench.wrench.force
         f.x, f.y, f.z = self.map.reflect(force).tolist()
         self.wrench_pub.publish(wrench)
+        energy = _stamp(Vector3Stamped(), stamp, self.base_frame)
+        port = self.port
+        energy.vector.x, energy.vector.y, energy.vector.z = (
+            port.energy_in, port.energy_out, port.dissipated)
+        self.energy_pub.publish(energy)
         if self.arm.position is not None:
             pose = _stamp(PoseStamped(), stamp, self.slave_frame)
             p, q = pose.pose.position, pose.pose.orientation
             p.x, p.y, p.z = self.arm.position.tolist()
             q.x, q.y, q.z, q.w = self.orientation
             self.pose_pub.publish(pose)
+
+    def _publish_diagnostics(self):
+        """Publish the slave port's energies, drift, and the master-to-slave delay and loss."""
+        port = self.port
+        values = {'passivity': 'on' if port.enabled else 'off',
+                  'slave energy in (J)': f'{port.energy_in:.4f}',
+                  'slave energy out (J)': f'{port.energy_out:.4f}',
+                  'slave energy dissipated (J)': f'{port.dissipated:.4f}',
+                  'slave energy observed (J)': f'{port.observed:.4f}',
+                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+        link = self.pose_link.summary()
+        if link is not None:
+            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
+                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
+            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
+        array = DiagnosticArray(status=[DiagnosticStatus(
+            name=f'{self.get_name()}: simulated slave', level=DiagnosticStatus.OK,
+            message=self.mode, values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
 
 
 def main(args=None):
