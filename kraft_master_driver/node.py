@@ -277,6 +277,7 @@ class KraftMasterNode(Node):
         self.output = None
         self.pose_entries = None  # 0T6 of the newest frame, 16 floats row by row
         self.cartesian_velocity = None
+        self._theta = None  # joint angles of the last frame, for the master port's work
         self.centre = None
         self._running = True
         # Not a daemon: the interpreter waits for the loop to zero the torques on its way out,
@@ -383,6 +384,7 @@ class KraftMasterNode(Node):
                 estimate = None
                 if result is None:
                     self.velocity.reset()
+                    self._theta = None
                     self._warn_no_reply()
                 else:
                     if self._replies_missing:
@@ -428,7 +430,9 @@ class KraftMasterNode(Node):
         c0 = time.thread_time_ns()
         self._take_wrenches()
         output = None
-        if estimate is not None:
+        if estimate is None:
+            self.master_port.idle(time.monotonic_ns())
+        else:
             output = self.force.compute(
                 estimate.rotation, estimate.jacobian, time.monotonic_ns(),
                 pose=None if self.centre is None else self._pose(), centre=self.centre,
@@ -492,9 +496,13 @@ class KraftMasterNode(Node):
         """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
         theta = self.calibration.frame_to_joints(result.frame.pots)
         pose, jacobian = kinematics.forward_and_jacobian_entries(theta, self.arm, self.lengths)
+        previous, self._theta = self._theta, theta
         velocity = self.velocity.update(theta, result.receive_ns)
         jacobian = [jacobian[row:row + 6] for row in range(0, 36, 6)]
         self.cartesian_velocity = [sum(map(operator.mul, row, velocity)) for row in jacobian]
+        if previous is not None:
+            step = [now - before for now, before in zip(theta, previous)]
+            self.master_port.moved([sum(map(operator.mul, row, step)) for row in jacobian])
         self.pose_entries = pose
         self.loop.frames += 1
         return Estimate(theta, velocity, pose, (pose[0:3], pose[4:7], pose[8:11]), jacobian)

@@ -78,51 +78,60 @@ class PortEnergy:
 
 
 class MasterPort(PortEnergy):
-    """The master's end: limits the force the operator feels (a variable damper)."""
+    """
+    The master's end: limits the force the operator feels (a variable damper).
+
+    Each cycle, moved() books the work the wrench applied since the last sample did over the
+    displacement measured since (exact for a force held between samples, whatever the velocity
+    estimate), then step() limits the next wrench to the credit left, predicting the motion
+    until the next sample from the velocity estimate.
+    """
 
     def __init__(self):
         """Start idle; the first step() only sets the clock."""
         super().__init__()
+        self._applied = None  # the wrench applied since the last sample
         self._last_ns = None
-        self._last_dt = 0.0
-        self._last_power_out = 0.0
+        self._period = 0.0
+
+    def moved(self, displacement):
+        """Book the work of the wrench applied over `displacement` (6 floats: m and rad)."""
+        if self._applied is not None:
+            self._account(_dot(self._applied, displacement), 1.0, 0.0)
+        self._applied = None
 
     def step(self, force, velocity, now_ns):
         """
-        Return the wrench (6 floats) to apply in place of `force` this step.
+        Return the wrench (6 floats) to apply in place of `force` until the next sample.
 
-        force: the reflected wrench on the operator's hand; velocity: the master's twist, both
-        6 floats in one frame; now_ns: monotonic time of this step. Book the energy as if
-        the result is applied in full; call scaled() if only part of it is.
+        force: the reflected wrench on the operator's hand; velocity: the master's twist (its
+        estimate), both 6 floats in one frame; now_ns: monotonic time of this step. Call
+        scaled() if only part of the result is applied.
         """
-        dt = 0.0 if self._last_ns is None else min((now_ns - self._last_ns) / 1e9, MAX_STEP)
+        if self._last_ns is not None:
+            self._period = min((now_ns - self._last_ns) / 1e9, MAX_STEP)
         self._last_ns = now_ns
+        dt = self._period
         power_out = _dot(force, velocity)
-        excess = self._excess(power_out, dt)
-        speed_squared = _dot(velocity, velocity)
-        if excess > 0.0 and speed_squared > 0.0:
-            alpha = excess / (dt * speed_squared)
+        # At most this step's own outflow: a deficit the prediction left is taken next steps.
+        excess = min(self._excess(power_out, dt), power_out * dt)
+        damping_work = dt * _dot(velocity, velocity)
+        if excess > 0.0 and damping_work > 0.0:
+            alpha = excess / damping_work
             force = [f - alpha * v for f, v in zip(force, velocity)]
-            power_out -= excess / dt
-        else:
-            excess = 0.0
-        self._account(power_out, dt, excess)
-        self._last_dt, self._last_power_out = dt, power_out
+            self.dissipated += excess
+        self._applied = force
         return force
 
     def scaled(self, factor):
-        """Re-book the last step with its wrench scaled by `factor` (0..1) on the way out."""
-        correction = (factor - 1.0) * self._last_power_out * self._last_dt
-        if self._last_power_out > 0.0:
-            self.energy_out += correction
-        else:
-            self.energy_in -= correction
-        self._last_power_out *= factor
+        """Note that the last wrench was applied scaled by `factor` (0..1)."""
+        if self._applied is not None:
+            self._applied = [factor * f for f in self._applied]
 
     def idle(self, now_ns):
         """Note a step with no channel force (zero torque): no energy, the clock moves on."""
         self._last_ns = now_ns
-        self._last_power_out = 0.0
+        self._applied = None
 
 
 class SlavePort(PortEnergy):
@@ -184,9 +193,9 @@ class SlavePort(PortEnergy):
         """Return (velocity, power out, dissipated) with the series damper applied if needed."""
         power_out = -_dot(force, velocity)
         excess = self._excess(power_out, dt)
-        force_squared = _dot(force, force)
-        if excess > 0.0 and force_squared > 0.0:
-            beta = excess / (dt * force_squared)
+        force_work = dt * _dot(force, force)
+        if excess > 0.0 and force_work > 0.0:
+            beta = excess / force_work
             velocity = [v + beta * f for v, f in zip(velocity, force)]
             power_out -= excess / dt
             return velocity, power_out, excess
