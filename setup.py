@@ -34,6 +34,7 @@ setup(
             'kraft_master_report = kraft_master_driver.report:main',
             'kraft_master_calibrate = kraft_master_driver.calibrate:main',
             'kraft_master_demo = kraft_master_driver.demo:main',
+            'kraft_master_link_emulator = kraft_master_driver.link_emulator:main',
         ],
     },
 )

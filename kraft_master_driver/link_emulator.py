@@ -1,0 +1,321 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+kraft_master_link_emulator: relay chosen topics between master and slave through a bad link.
+
+The master side (the driver) and the slave side live in two DDS domains: the node joins the
+master's domain (ROS_DOMAIN_ID) and the slave's (parameter slave_domain_id), so the two sides
+can only hear each other through it, with the topic names they already use. Each relay takes
+one topic of any message type as serialized bytes (no deserialisation), lets the direction's
+DelayLine (delay_line.py) decide its fate, and publishes the bytes on the other side when due:
+at once from the subscription when nothing is queued and no delay is set, else from one release
+thread that sleeps until the earliest due time. Subscriptions are best effort (they accept any
+publisher; losing a sample is the emulated link's job), publishers reliable depth 10 (a reliable
+publisher reaches reliable and best-effort subscribers alike).
+
+Both directions report counts and the delay they added (received to published) on
+`diagnostics` every second and in the log every 10 s and at exit.
+"""
+import heapq
+import importlib
+import itertools
+import re
+import sys
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from kraft_master_driver.delay_line import DelayLine, LinkModel
+from kraft_master_driver.node import GIL_SWITCH_INTERVAL_S, ParameterError, run_node
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+import rclpy.exceptions
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+DIRECTIONS = ('to_slave', 'to_master')
+TYPE_PATTERN = re.compile(r'^(\w+)/msg/(\w+)$')
+LOG_PERIOD_S = 10.0
+
+PARAMETERS = {
+    'slave_domain_id': (-1, 'DDS domain of the slave side; -1: the domain of the master '
+                            '(then relays must rename their topics).'),
+    'seed': (-1, 'Seed of the loss and jitter draws; -1: a different one each run.'),
+    'to_slave.topics': (['pose'], 'Topics relayed master -> slave: "name", '
+                                  '"source:destination" or "source:destination:pkg/msg/Type".'),
+    'to_master.topics': (['wrench'], 'Topics relayed slave -> master, as to_slave.topics.'),
+}
+for _direction in DIRECTIONS:
+    PARAMETERS.update({
+        f'{_direction}.delay': (0.0, 'One-way delay (s) added to every message.'),
+        f'{_direction}.jitter': (0.0, 'Extra delay (s) drawn uniformly in [0, jitter]; order '
+                                      'is kept, so a draw that would overtake waits.'),
+        f'{_direction}.loss': (0.0, 'Long-run fraction of messages lost, in [0, 1).'),
+        f'{_direction}.loss_burst': (0.0, 'Mean length of a run of lost messages (Gilbert '
+                                          'chain), >= 1; 0: independent losses.'),
+    })
+
+
+def parse_relay(spec):
+    """Return (source, destination, type name or None) from "src[:dst[:pkg/msg/Type]]"."""
+    parts = spec.split(':') if isinstance(spec, str) else []
+    if not 1 <= len(parts) <= 3 or not all(parts):
+        raise ValueError(f'topics: relay "{spec}" must be "name", "source:destination" or '
+                         f'"source:destination:pkg/msg/Type"')
+    type_name = parts[2] if len(parts) == 3 else None
+    if type_name is not None and not TYPE_PATTERN.match(type_name):
+        raise ValueError(f'topics: relay "{spec}": message type must look like pkg/msg/Type')
+    return parts[0], parts[1] if len(parts) > 1 else parts[0], type_name
+
+
+def message_class(type_name):
+    """Return the Python class of a message type "pkg/msg/Type", or raise ValueError."""
+    package, name = TYPE_PATTERN.match(type_name).groups()
+    try:
+        return getattr(importlib.import_module(f'{package}.msg'), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name} is not installed') from None
+
+
+class Releaser(threading.Thread):
+    """Publishes queued messages at their due times (time.monotonic seconds), in due order."""
+
+    def __init__(self):
+        """Start with nothing queued; call start()."""
+        super().__init__(name='link_emulator_release', daemon=True)
+        self.queue = []
+        self.sequence = itertools.count()
+        self.wake = threading.Condition()
+        self.running = True
+
+    def put(self, due, relay, data, admitted):
+        """Queue `data` for `relay` to publish at `due`."""
+        with self.wake:
+            heapq.heappush(self.queue, (due, next(self.sequence), relay, data, admitted))
+            if self.queue[0][0] == due:
+                self.wake.notify()
+
+    def run(self):
+        """Sleep to the earliest due time, publish what is due, repeat until stop()."""
+        while self.running:
+            with self.wake:
+                now = time.monotonic()
+                if not self.queue or self.queue[0][0] > now:
+                    self.wake.wait(self.queue[0][0] - now if self.queue else None)
+                    continue
+                _, _, relay, data, admitted = heapq.heappop(self.queue)
+            relay.release(data, admitted)
+
+    def stop(self):
+        """End the thread; whatever is still queued is not published."""
+        with self.wake:
+            self.running = False
+            self.wake.notify()
+        self.join(timeout=2.0)
+
+
+class Relay:
+    """One topic carried in one direction: a raw subscription and a publisher of bytes."""
+
+    def __init__(self, spec, source_node, destination_node, line, releaser):
+        """Parse `spec`; the subscription starts once the type is known."""
+        self.spec = spec
+        self.source, self.destination, self.type_name = parse_relay(spec)
+        self.source_node = source_node
+        self.destination_node = destination_node
+        self.line = line
+        self.releaser = releaser
+        self.publisher = None
+        self.queued = 0
+        self.lock = threading.Lock()
+        if self.type_name is not None:
+            self._connect(message_class(self.type_name))
+
+    def discover(self):
+        """Take the type from the source side's graph if it is known yet; return True if so."""
+        name = self.source_node.resolve_topic_name(self.source)
+        types = dict(self.source_node.get_topic_names_and_types()).get(name)
+        if not types:
+            return False
+        if len(types) > 1:
+            raise ValueError(f'topic {name} has several types ({", ".join(types)}): '
+                             f'name one in the relay')
+        self.type_name = types[0]
+        self._connect(message_class(self.type_name))
+        return True
+
+    def _connect(self, msg_class):
+        self.publisher = self.destination_node.create_publisher(
+            msg_class, self.destination, QoSProfile(depth=10,
+                                                    reliability=ReliabilityPolicy.RELIABLE))
+        self.source_node.create_subscription(
+            msg_class, self.source, self._on_message,
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
+
+    def _on_message(self, data):
+        now = time.monotonic()
+        with self.lock:
+            due = self.line.admit(now)
+            if due is None:
+                return
+            if due <= now and not self.queued:
+                self.publisher.publish(data)
+                self.line.record(time.monotonic(), now)
+                return
+            self.queued += 1
+        self.releaser.put(due, self, data, now)
+
+    def release(self, data, admitted):
+        """Publish `data` (called by the release thread at its due time)."""
+        self.publisher.publish(data)
+        with self.lock:
+            self.line.record(time.monotonic(), admitted)
+            self.queued -= 1
+
+
+class LinkEmulatorNode(Node):
+    """Joins both sides, relays the configured topics through one DelayLine per direction."""
+
+    def __init__(self, **kwargs):
+        """Check parameters, join the slave's domain, start relays and the release thread."""
+        super().__init__('kraft_master_link_emulator', **kwargs)
+        config = self._declare_parameters()
+        try:
+            models = {}
+            for direction in DIRECTIONS:
+                models[direction] = LinkModel(*(config[f'{direction}.{field}']
+                                                for field in LinkModel._fields)).checked()
+                for spec in config[f'{direction}.topics']:
+                    parse_relay(spec)
+        except ValueError as error:
+            raise ParameterError(f'parameter {direction}.{error}') from None
+        specs = {d: config[f'{d}.topics'] for d in DIRECTIONS}
+        seed = None if config['seed'] < 0 else config['seed']
+        self.master_domain = self.context.get_domain_id()
+        slave_domain = config['slave_domain_id']
+        self.slave_context = self.slave_executor = self.slave_thread = None
+        slave_node = self
+        if slave_domain >= 0 and slave_domain != self.master_domain:
+            self.slave_context = rclpy.Context()
+            rclpy.init(context=self.slave_context, domain_id=slave_domain)
+            slave_node = rclpy.create_node(self.get_name(), namespace=self.get_namespace(),
+                                           context=self.slave_context)
+            self.slave_executor = SingleThreadedExecutor(context=self.slave_context)
+            self.slave_executor.add_node(slave_node)
+        else:
+            slave_domain = self.master_domain
+            for spec in specs['to_slave'] + specs['to_master']:
+                source, destination, _ = parse_relay(spec)
+                if self.resolve_topic_name(source) == self.resolve_topic_name(destination):
+                    raise ParameterError(
+                        f'relay "{spec}" in one domain would feed itself: set '
+                        f'slave_domain_id or rename the destination')
+        self.slave_node = slave_node
+        self.slave_domain = slave_domain
+        self.releaser = Releaser()
+        ends = {'to_slave': (self, slave_node), 'to_master': (slave_node, self)}
+        self.lines = {d: DelayLine(models[d], seed=None if seed is None else seed + i)
+                      for i, d in enumerate(DIRECTIONS)}
+        try:
+            self.relays = {d: [Relay(spec, *ends[d], self.lines[d], self.releaser)
+                               for spec in specs[d]] for d in DIRECTIONS}
+        except ValueError as error:
+            raise ParameterError(str(error)) from None
+        self.releaser.start()
+        if self.slave_executor is not None:
+            self.slave_thread = threading.Thread(
+                target=self._spin_slave_side, name='link_emulator_slave_side', daemon=True)
+            self.slave_thread.start()
+        self.diag_pub = self.create_publisher(
+            DiagnosticArray, 'diagnostics',
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.create_timer(0.5, self._discover)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_timer(LOG_PERIOD_S, self._log_summary)
+        self.get_logger().info(
+            f'relaying domain {self.master_domain} (master) <-> {slave_domain} (slave); '
+            + '; '.join(f'{d}: {", ".join(config[f"{d}.topics"])} with {models[d]}'
+                        for d in DIRECTIONS))
+
+    def _declare_parameters(self):
+        values = {}
+        for name, (default, description) in PARAMETERS.items():
+            descriptor = ParameterDescriptor(
+                name=name, description=description, read_only=True,
+                # Numbers may be given as 1 or 1.0: LinkModel.checked() checks them.
+                dynamic_typing=isinstance(default, float))
+            try:
+                values[name] = self.declare_parameter(name, default, descriptor).value
+            except (rclpy.exceptions.InvalidParameterTypeException,
+                    rclpy.exceptions.InvalidParameterValueException) as error:
+                raise ParameterError(f'parameter {name}: {error}') from None
+        return values
+
+    def _spin_slave_side(self):
+        try:
+            self.slave_executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def _discover(self):
+        for relay in itertools.chain.from_iterable(self.relays.values()):
+            if relay.publisher is not None:
+                continue
+            try:
+                if relay.discover():
+                    self.get_logger().info(
+                        f'relay {relay.source} -> {relay.destination} ({relay.type_name}) up')
+            except ValueError as error:
+                self.get_logger().error(str(error), throttle_duration_sec=10.0)
+
+    def _summary(self, direction):
+        values = {'domains': (f'{self.master_domain} -> {self.slave_domain}'
+                              if direction == 'to_slave'
+                              else f'{self.slave_domain} -> {self.master_domain}'),
+                  'model': str(self.lines[direction].model)}
+        values.update({k: str(v) for k, v in self.lines[direction].stats.summary().items()})
+        values['topics'] = ', '.join(
+            f'{r.source} -> {r.destination}' + ('' if r.publisher else ' (waiting for type)')
+            for r in self.relays[direction])
+        return values
+
+    def _publish_diagnostics(self):
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        for direction in DIRECTIONS:
+            waiting = any(r.publisher is None for r in self.relays[direction])
+            array.status.append(DiagnosticStatus(
+                name=f'{self.get_name()}: {direction.replace("_", " ")}',
+                level=DiagnosticStatus.WARN if waiting else DiagnosticStatus.OK,
+                message='waiting for a topic type' if waiting else 'relaying',
+                values=[KeyValue(key=k, value=v) for k, v in self._summary(direction).items()]))
+        self.diag_pub.publish(array)
+
+    def _log_summary(self):
+        for direction in DIRECTIONS:
+            stats = self.lines[direction].stats.summary()
+            self.get_logger().info(f'{direction}: ' + ', '.join(
+                f'{k} {v}' for k, v in stats.items()))
+
+    def destroy_node(self):
+        """Stop the release thread, log what was done, leave the slave's domain."""
+        self.releaser.stop()
+        self._log_summary()
+        if self.slave_executor is not None:
+            self.slave_executor.shutdown()
+            self.slave_node.destroy_node()
+            rclpy.try_shutdown(context=self.slave_context)
+            self.slave_thread.join(timeout=2.0)
+        super().destroy_node()
+
+
+def main(args=None):
+    """Run the emulator until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    # The release thread must get the interpreter lock soon after its due time.
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    return run_node(LinkEmulatorNode, 'kraft_master_link_emulator', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
