@@ -3,9 +3,11 @@
 """
 Teleoperation across a delaying, lossy link, one push into the stiff wall (tests, benchmark).
 
-The simulated hand controller runs in this process ('hold' operator), the installed driver at
-1 kHz on one DDS domain, the installed slave simulator on another, and delay_relay.py between
-them, holding every message for half the round trip and dropping the given fraction. The
+Two hosts (netns.TwoHosts: two network namespaces joined by a veth pair): on the master host
+the installed driver at 1 kHz on one DDS domain, driving the simulated hand controller that runs
+in this process ('hold' operator) over its pseudo-terminal, and kraft_master_link_emulator
+relaying to the slave's domain with half the round trip each way and the given loss; on the
+slave host the installed slave simulator. A recorder on each host (remote_recorder.py). The
 operator's hand pulls the master PAST m through the slave's wall (the slave follows one to one)
 over RAMP s, holds HOLD s, goes back over RAMP s and rests SETTLE s. run_row() returns the
 figures: master peak-to-peak along the wall normal over the last WINDOW s of the hold, the
@@ -15,25 +17,23 @@ the device received), the master-slave drift after the release, the one-way dela
 each side measured.
 """
 import collections
+import json
 import math
 import pathlib
+import signal
 import subprocess
 import sys
 import threading
 import time
 
-from delay_relay import Side
-from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import DriverProcess, installed_env, next_domain_id
-from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
+from driver_harness import executable, installed_env, next_domain_id
 from kraft_master_driver import kinematics
 from kraft_master_driver.protocol import DEFAULT_TORQUE_SCALE
 from kraft_master_driver.simulator import joints_to_actuators, SimulatedKraftMaster, Workspace
+from netns import TwoHosts
 import numpy as np
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-RELAY = pathlib.Path(__file__).resolve().parent / 'delay_relay.py'
-
+RECORDER = pathlib.Path(__file__).resolve().parent / 'remote_recorder.py'
 ARM = 'right'
 HOME_THETA = Workspace().home()
 HOME = kinematics.forward(HOME_THETA, ARM)[:3, 3]
@@ -62,67 +62,63 @@ def vector(values):
     return '[' + ', '.join(f'{float(v)!r}' for v in values) + ']'
 
 
-def xyz(v):
-    """Return a Point or Vector3 as an array."""
-    return np.array([v.x, v.y, v.z])
-
-
-class Recorder:
-    """Subscriptions on one domain, each keeping (receipt time, message)."""
-
-    def __init__(self, domain_id, name, topics):
-        """Listen to `topics` ((name, type), ...) on domain_id."""
-        self.side = Side(domain_id, name)
-        self.messages = {}
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
-        for topic, msg_type in topics:
-            kept = self.messages[topic] = collections.deque(maxlen=20000)
-            self.side.node.create_subscription(
-                msg_type, topic, lambda msg, kept=kept: kept.append((time.monotonic(), msg)),
-                qos)
-        self.side.thread.start()
-
-
-def diagnostics_values(recorded, since):
+def diagnostics_values(records, since):
     """Return {key: [float values]} of the diagnostics received after `since`."""
     values = collections.defaultdict(list)
-    for t, array in recorded:
+    for t, items in records:
         if t >= since:
-            for status in array.status:
-                for item in status.values:
-                    try:
-                        values[item.key].append(float(item.value))
-                    except ValueError:
-                        pass
+            for key, value in items.items():
+                try:
+                    values[key].append(float(value))
+                except ValueError:
+                    pass
     return values
 
 
+def start(host, prefix, domain_id, name, parameters):
+    """Start installed executable `name` in `host` with `-p` parameters."""
+    command = [executable(prefix, name), '--ros-args']
+    for parameter, value in parameters:
+        command += ['-p', f'{parameter}:={value}']
+    return host.popen(command, env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
+                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+class Recorder:
+    """remote_recorder.py running in a host; records() stops it and returns what it got."""
+
+    def __init__(self, host, prefix, domain_id, topics):
+        """Start recording `topics` on domain_id in `host`."""
+        self.topics = topics
+        self.process = host.popen(
+            [sys.executable, RECORDER, *topics],
+            env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
+            stdout=subprocess.PIPE, text=True)
+        assert self.process.stdout.readline().strip() == 'ready'
+        self.first = set()
+        threading.Thread(target=self._read_firsts, daemon=True).start()
+
+    def _read_firsts(self):
+        for line in self.process.stdout:
+            if not line.startswith('first '):
+                self.output = line
+                return
+            self.first.add(line.split()[1])
+
+    def records(self):
+        """Stop the recorder; return {topic: [[receipt time, values...], ...]}."""
+        self.process.send_signal(signal.SIGINT)
+        self.process.wait(timeout=60)
+        deadline = time.monotonic() + 10.0
+        while not hasattr(self, 'output') and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return json.loads(self.output)
+
+
 def run_row(prefix, round_trip_ms, loss, passivity, seed):
-    """Run one row; return its figures."""
+    """Run one session on two hosts; return its figures (NamespacesRefused if not allowed)."""
     simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000)
     port = simulator.start()
-    master_domain, slave_domain = next_domain_id(), next_domain_id()
-    wall_point = HOME - WALL_BELOW * NORMAL
-    on = 'true' if passivity else 'false'
-    driver = DriverProcess(prefix, master_domain, [
-        ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
-        ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
-        ('passivity', on)])
-    slave = DriverProcess(prefix, slave_domain, [
-        ('centre_at_start', 'false'), ('centre', vector(HOME)), ('offset', vector(HOME)),
-        ('box.stiffness', 0.0), ('wall.point', vector(wall_point)),
-        ('wall.normal', vector(NORMAL)), ('passivity', on),
-        *((name, float(value)) for name, value in SLAVE.items())],
-        name='kraft_master_slave_sim')
-    relay = subprocess.Popen(
-        [sys.executable, str(RELAY), str(master_domain),
-         str(slave_domain), str(round_trip_ms / 2.0), str(loss), str(seed)],
-        env=installed_env(prefix, master_domain), stdout=subprocess.PIPE, text=True)
-    master = Recorder(master_domain, 'bench_master', (
-        ('master_energy', Vector3Stamped), ('diagnostics', DiagnosticArray)))
-    far = Recorder(slave_domain, 'bench_slave', (
-        ('slave_pose', PoseStamped), ('wrench', WrenchStamped),
-        ('slave_energy', Vector3Stamped), ('diagnostics', DiagnosticArray)))
     samples = []
     sampling = threading.Event()
 
@@ -134,40 +130,61 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
             samples.append((time.monotonic(), theta, counts / scale))
 
     sampler = threading.Thread(target=sample, daemon=True)
+    master_domain, slave_domain = next_domain_id(), next_domain_id()
+    wall_point = HOME - WALL_BELOW * NORMAL
+    on = 'true' if passivity else 'false'
     try:
-        assert relay.stdout.readline().strip() == 'ready'
-        deadline = time.monotonic() + 60.0
-        while not (far.messages['slave_pose'] and master.messages['master_energy']
-                   and far.messages['slave_energy']):
-            assert time.monotonic() < deadline, 'driver, slave or relay did not start'
-            time.sleep(0.05)
-        sampler.start()
-        home, pushed = joints_to_actuators(HOME_THETA), actuator_target(WALL_BELOW + PAST)
-        marks = {}
-        for phase, start, end, seconds in (('push', home, pushed, RAMP),
-                                           ('hold', pushed, pushed, HOLD),
-                                           ('release', pushed, home, RAMP),
-                                           ('settle', home, home, SETTLE)):
-            marks[phase] = t0 = time.monotonic()
-            while (elapsed := time.monotonic() - t0) < seconds:
-                blend = 0.5 - 0.5 * math.cos(math.pi * elapsed / seconds)
-                simulator.hold_at(start + blend * (end - start))
-                time.sleep(0.01)
-        marks['end'] = time.monotonic()
-        sampling.set()
-        sampler.join()
-        for recorder in (master, far):
-            recorder.side.executor.shutdown()
-        return figures(samples, master, far, marks, wall_point)
+        with TwoHosts() as (master_host, slave_host):
+            start(master_host, prefix, master_domain, 'kraft_master_node', [
+                ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
+                ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
+                ('passivity', on)])
+            one_way = round_trip_ms / 2e3
+            start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
+                ('slave_domain_id', slave_domain), ('seed', seed),
+                ('to_slave.topics', "['pose', 'master_energy']"),
+                ('to_master.topics', "['wrench', 'slave_energy']"),
+                ('to_slave.delay', one_way), ('to_master.delay', one_way),
+                ('to_slave.loss', loss), ('to_master.loss', loss)])
+            start(slave_host, prefix, slave_domain, 'kraft_master_slave_sim', [
+                ('centre_at_start', 'false'), ('centre', vector(HOME)),
+                ('offset', vector(HOME)), ('box.stiffness', 0.0),
+                ('wall.point', vector(wall_point)), ('wall.normal', vector(NORMAL)),
+                ('passivity', on), *((name, float(value)) for name, value in SLAVE.items())])
+            master = Recorder(master_host, prefix, master_domain,
+                              ('master_energy', 'diagnostics'))
+            far = Recorder(slave_host, prefix, slave_domain,
+                           ('slave_pose', 'wrench', 'slave_energy', 'diagnostics'))
+            deadline = time.monotonic() + 90.0
+            while not ({'slave_pose', 'slave_energy'} <= far.first
+                       and 'master_energy' in master.first):
+                assert time.monotonic() < deadline, 'driver, emulator or slave did not start'
+                time.sleep(0.05)
+            sampler.start()
+            marks = operate(simulator)
+            sampling.set()
+            sampler.join()
+            return figures(samples, master.records(), far.records(), marks, wall_point)
     finally:
         sampling.set()
-        for started in (driver, slave):
-            started.kill()
-        relay.terminate()
-        relay.communicate(timeout=20)
-        master.side.close()
-        far.side.close()
         simulator.stop()
+
+
+def operate(simulator):
+    """Push the master through the wall, hold, release, rest; return the phases' start times."""
+    home, pushed = joints_to_actuators(HOME_THETA), actuator_target(WALL_BELOW + PAST)
+    marks = {}
+    for phase, start_at, end, seconds in (('push', home, pushed, RAMP),
+                                          ('hold', pushed, pushed, HOLD),
+                                          ('release', pushed, home, RAMP),
+                                          ('settle', home, home, SETTLE)):
+        marks[phase] = t0 = time.monotonic()
+        while (elapsed := time.monotonic() - t0) < seconds:
+            blend = 0.5 - 0.5 * math.cos(math.pi * elapsed / seconds)
+            simulator.hold_at(start_at + blend * (end - start_at))
+            time.sleep(0.01)
+    marks['end'] = time.monotonic()
+    return marks
 
 
 def figures(samples, master, far, marks, wall_point):
@@ -178,30 +195,28 @@ def figures(samples, master, far, marks, wall_point):
     depths = (wall_point - positions) @ NORMAL
     window = (times >= marks['release'] - WINDOW) & (times < marks['release'])
     felt = []
-    for theta, torques in zip(thetas[window], (s[2] for s, w in zip(samples, window) if w)):
+    for theta, (_, _, torques) in zip(thetas[window], np.array(samples, dtype=object)[window]):
         joint = np.array([torques[0], torques[1] + torques[2], *torques[2:]])
         jacobian = kinematics.jacobian(theta, ARM)
         felt.append(np.linalg.lstsq(jacobian[:3, :5].T, joint, rcond=None)[0] @ NORMAL)
-    slave_at = [(t, xyz(m.pose.position)) for t, m in far.messages['slave_pose']]
-    slave_depth = max((wall_point - p) @ NORMAL for _, p in slave_at)
-    slave_force = [xyz(m.wrench.force) @ NORMAL for t, m in far.messages['wrench']
-                   if marks['release'] - WINDOW <= t < marks['release']]
-    energies = [m.vector for _, m in (master.messages['master_energy'][-1],
-                                      far.messages['slave_energy'][-1])]
-    generated = sum(e.y for e in energies) - sum(e.x for e in energies)
-    drift = np.linalg.norm(slave_at[-1][1] - positions[-1])
-    hold = marks['hold']
-    ours = diagnostics_values(master.messages['diagnostics'], hold)
-    theirs = diagnostics_values(far.messages['diagnostics'], hold)
+    slave_at = np.array([r[1:] for r in far['slave_pose']])
+    slave_depth = float(np.max((wall_point - slave_at) @ NORMAL))
+    slave_force = [np.array(r[1:]) @ NORMAL for r in far['wrench']
+                   if marks['release'] - WINDOW <= r[0] < marks['release']]
+    energies = (master['master_energy'][-1][1:], far['slave_energy'][-1][1:])
+    generated = sum(e[1] for e in energies) - sum(e[0] for e in energies)
+    drift = np.linalg.norm(slave_at[-1] - positions[-1])
+    ours = diagnostics_values(master['diagnostics'], marks['hold'])
+    theirs = diagnostics_values(far['diagnostics'], marks['hold'])
     force_at_slave = float(np.mean(slave_force)) if slave_force else math.nan
     force_felt = float(np.mean(felt)) if felt else math.nan
     return {
         'master_pp_mm': 1e3 * float(np.ptp(depths[window])),
         'master_depth_mm': 1e3 * float(np.mean(depths[window])),
-        'slave_penetration_mm': 1e3 * float(slave_depth),
+        'slave_penetration_mm': 1e3 * slave_depth,
         'energy_generated_j': float(generated),
-        'dissipated_master_j': float(energies[0].z),
-        'dissipated_slave_j': float(energies[1].z),
+        'dissipated_master_j': float(energies[0][2]),
+        'dissipated_slave_j': float(energies[1][2]),
         'force_slave_n': force_at_slave,
         'force_felt_n': force_felt,
         'felt_ratio': force_felt / force_at_slave if force_at_slave else math.nan,
