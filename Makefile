@@ -5,6 +5,8 @@ VENV := .venv
 VPY := $(VENV)/bin/python
 STAMP := $(VENV)/.requirements-installed
 DURATION ?= 20
+DELAY_MS ?= 0
+PASSIVITY ?= off
 
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
@@ -20,7 +22,8 @@ $(STAMP): requirements.txt
 	touch $@
 
 demo: $(STAMP)
-	$(VPY) -m kraft_master_driver.demo --duration $(DURATION)
+	$(VPY) -m kraft_master_driver.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
+		--passivity $(PASSIVITY)
 
 test: $(STAMP)
 	$(VPY) -m pytest -q

@@ -10,6 +10,7 @@ is reflected to the master as joint torques. A few refreshed lines show what hap
 """
 import argparse
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -23,6 +24,9 @@ SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulator', '--operator'
 DRIVER = [sys.executable, '-m', 'kraft_master_driver.node', '--ros-args',
           '-p', 'force_enabled_at_start:=true']
 SLAVE = [sys.executable, '-m', 'kraft_master_driver.slave_sim']
+EMULATOR = [sys.executable, '-m', 'kraft_master_driver.link_emulator', '--ros-args',
+            '-p', 'to_slave.topics:=[pose, master_energy]',
+            '-p', 'to_master.topics:=[wrench, slave_energy, slave_pose]']
 
 
 def _rows(matrix, scales):
@@ -119,13 +123,30 @@ def stop(processes):
             process.wait()
 
 
-def teleoperate(duration, out=sys.stdout):
-    """Run driver and slave for `duration` s (or until Ctrl-C), refreshing the readout."""
+def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
+    """
+    Run driver and slave for `duration` s (or until Ctrl-C), refreshing the readout.
+
+    With delay_ms > 0 the slave runs on the next DDS domain and the link emulator relays
+    between them with half of delay_ms each way; passivity turns it on at both ends.
+    """
     simulator = subprocess.Popen(SIMULATOR, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                  text=True)
     port = simulator.stdout.readline().partition('port: ')[2].strip()
-    processes = [subprocess.Popen([*DRIVER, '-p', f'port:={port}'], stdin=subprocess.DEVNULL),
-                 subprocess.Popen(SLAVE, stdin=subprocess.DEVNULL), simulator]
+    passive = ['-p', f'passivity:={str(passivity).lower()}']
+    slave_env, emulator = None, []
+    if delay_ms > 0.0:
+        slave_domain = (int(os.environ.get('ROS_DOMAIN_ID', '0')) + 1) % 233
+        slave_env = dict(os.environ, ROS_DOMAIN_ID=str(slave_domain))
+        one_way = delay_ms / 2e3
+        emulator = [subprocess.Popen(
+            [*EMULATOR, '-p', f'slave_domain_id:={slave_domain}',
+             '-p', f'to_slave.delay:={one_way}', '-p', f'to_master.delay:={one_way}'],
+            stdin=subprocess.DEVNULL)]
+    processes = [subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive],
+                                  stdin=subprocess.DEVNULL),
+                 subprocess.Popen([*SLAVE, '--ros-args', *passive], stdin=subprocess.DEVNULL,
+                                  env=slave_env), *emulator, simulator]
     readout = Readout()
     interactive = out.isatty()
     shown = 0
@@ -155,10 +176,15 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--duration', type=float, default=20.0,
                         help='seconds of teleoperation (default 20); Ctrl-C ends it earlier')
+    parser.add_argument('--delay-ms', type=float, default=0.0,
+                        help='round trip between master and slave through the link emulator')
+    parser.add_argument('--passivity', choices=('on', 'off'), default='off',
+                        help='time-domain passivity at both ends (default off)')
     args = parser.parse_args(argv)
     print_examples()
     print(f'Simulated teleoperation for {args.duration:g} s (Ctrl-C to stop) ...', flush=True)
-    return teleoperate(args.duration)
+    return teleoperate(args.duration, delay_ms=args.delay_ms,
+                       passivity=args.passivity == 'on')
 
 
 if __name__ == '__main__':

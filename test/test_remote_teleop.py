@@ -3,10 +3,12 @@
 """
 Teleoperation across a 100 ms round trip with passivity on: the contact holds still.
 
-Driver and slave on two DDS domains with the delaying relay between them (remote_session.py);
+Driver and slave on two hosts (network namespaces), the link emulator between them
+(remote_session.py);
 the simulated operator pushes the master 25 mm through the slave's stiff wall and holds.
 Asserted on physical quantities with margins wide enough for a loaded machine.
 """
+from netns import NamespacesRefused
 import pytest
 from remote_session import PAST, run_row
 
@@ -14,7 +16,10 @@ pytestmark = pytest.mark.integration
 
 
 def test_contact_across_100_ms_is_stable_and_the_channel_passive(install_prefix):
-    row = run_row(install_prefix, round_trip_ms=100.0, loss=0.01, passivity=True, seed=0)
+    try:
+        row = run_row(install_prefix, round_trip_ms=100.0, loss=0.01, passivity=True, seed=0)
+    except NamespacesRefused as error:
+        pytest.skip(str(error))
     print(row)
     # The contact happened and held: the master past the wall, the slave pressing on it.
     assert row['master_depth_mm'] > 0.0
