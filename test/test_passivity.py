@@ -5,7 +5,7 @@ import collections
 import math
 import random
 
-from kraft_master_driver.passivity import LinkMonitor, MasterPort, MAX_STEP, SlavePort
+from kraft_master_driver.passivity import LinkMonitor, MasterPort, SlavePort
 from kraft_master_driver.teleop import ForceReflection
 import numpy as np
 import pytest
