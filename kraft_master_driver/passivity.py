@@ -13,8 +13,11 @@ other end has put in as far as this end knows (Ryu, Artigas and Preusche, Mechat
 When a step would make it negative, the port's passivity controller dissipates exactly the
 excess in that step (Hannaford and Ryu, IEEE TRA 2002):
 
-- MasterPort (the channel hands a force to the operator): a variable damper,
-  F' = F - alpha v, so that F' . v dt, the energy handed to the hand, drops by the excess.
+- MasterPort (the channel hands a force to the operator): the wrench is scaled down,
+  F' = k F with 0 <= k < 1, so that F' . v dt, the energy predicted to reach the hand, drops by
+  the excess. (The damper F - alpha v of Hannaford and Ryu, driven by a filtered velocity
+  that lags the motion, pumped energy into the hand in benchmarks/delay_model.py; scaling never
+  turns the wrench and takes only energy that would leave.)
 - SlavePort (the channel hands a motion to the slave): a variable series damper on the
   commanded velocity, v' = v + beta F, so that -F . v' dt, the energy handed to the
   environment, drops by the excess. What it takes off the motion is the master-slave drift;
@@ -79,7 +82,7 @@ class PortEnergy:
 
 class MasterPort(PortEnergy):
     """
-    The master's end: limits the force the operator feels (a variable damper).
+    The master's end: limits the force the operator feels (scales the wrench down).
 
     Each cycle, moved() books the work the wrench applied since the last sample did over the
     displacement measured since (exact for a force held between samples, whatever the velocity
@@ -113,12 +116,11 @@ class MasterPort(PortEnergy):
         self._last_ns = now_ns
         dt = self._period
         power_out = _dot(force, velocity)
-        # At most this step's own outflow: a deficit the prediction left is taken next steps.
+        # At most this step's own outflow: a deficit the prediction left waits for credit.
         excess = min(self._excess(power_out, dt), power_out * dt)
-        damping_work = dt * _dot(velocity, velocity)
-        if excess > 0.0 and damping_work > 0.0:
-            alpha = excess / damping_work
-            force = [f - alpha * v for f, v in zip(force, velocity)]
+        if excess > 0.0:
+            keep = 1.0 - excess / (power_out * dt)
+            force = [keep * f for f in force]
             self.dissipated += excess
         self._applied = force
         return force
