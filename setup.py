@@ -17,6 +17,7 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
         ('share/' + package_name + '/urdf', glob('urdf/*.urdf')),
+        ('share/' + package_name + '/security', glob('security/*.policy.xml')),
     ],
     install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML'],
     zip_safe=True,

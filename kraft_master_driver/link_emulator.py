@@ -105,14 +105,18 @@ class Releaser(threading.Thread):
                     self.wake.wait(self.queue[0][0] - now if self.queue else None)
                     continue
                 _, _, relay, data, admitted = heapq.heappop(self.queue)
-            relay.release(data, admitted)
+            try:
+                relay.release(data, admitted)
+            except RuntimeError:
+                # Ctrl-C shut a context down before stop(): nothing more can be published.
+                return
 
     def stop(self):
         """End the thread; whatever is still queued is not published."""
         with self.wake:
             self.running = False
             self.wake.notify()
-        self.join(timeout=2.0)
+        self.join()
 
 
 class Relay:
@@ -257,6 +261,10 @@ class LinkEmulatorNode(Node):
             self.slave_executor.spin()
         except ExternalShutdownException:
             pass
+        except RuntimeError:
+            # Ctrl-C shut a context down while a message was relayed.
+            if self.slave_context.ok() and self.context.ok():
+                raise
 
     def _discover(self):
         for relay in itertools.chain.from_iterable(self.relays.values()):
@@ -299,16 +307,17 @@ class LinkEmulatorNode(Node):
                 f'{k} {v}' for k, v in stats.items()))
 
     def destroy_node(self):
-        """Stop the release thread, log what was done, leave the slave's domain."""
+        """Stop both threads that publish, log what was done, leave the slave's domain."""
+        # Both threads must have ended before any publisher they use is destroyed.
         self.releaser.stop()
-        self._log_summary()
         if self.slave_executor is not None:
             self.slave_executor.shutdown()
+            self.slave_thread.join()
+        self._log_summary()
+        if self.slave_executor is not None:
             self.slave_node.destroy_node()
             rclpy.try_shutdown(context=self.slave_context)
-            self.slave_thread.join(timeout=2.0)
         super().destroy_node()
-
 
 def main(args=None):
     """Run the emulator until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""

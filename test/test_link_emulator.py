@@ -3,13 +3,17 @@
 """The link emulator: its delay line (plain Python) and the installed node between two domains."""
 import collections
 import re
+import shlex
+import signal
+import subprocess
 import threading
 import time
 
-from driver_harness import DriverProcess, next_domain_id, wait_for
+from driver_harness import DriverProcess, executable as executable_path, installed_env
+from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.delay_line import DelayLine, LinkModel
-from kraft_master_driver.link_emulator import parse_relay
+from kraft_master_driver.link_emulator import PARAMETERS, parse_relay
 import numpy as np
 import pytest
 import rclpy
@@ -165,7 +169,7 @@ class Arrivals:
                                                  reliability=ReliabilityPolicy.BEST_EFFORT))
 
     def _on_message(self, msg):
-        if msg.header.frame_id:
+        if msg.header.frame_id in (WARM_UP, END):
             self.markers[msg.header.frame_id] += 1
             return
         now = self.clock.now().nanoseconds * 1e-9
@@ -288,3 +292,74 @@ def test_node_loses_the_set_fraction_and_keeps_order_under_jitter(two_domains):
     received, relayed, dropped = counts(output, 'to_slave')
     assert 0.1 < dropped / received < 0.3
     assert len(poses.arrivals.records) < relayed <= received - dropped
+
+
+# -- the README ----------------------------------------------------------------------------
+
+def readme_section():
+    """Return the README's section on the link emulator."""
+    text = (REPO / 'README.md').read_text()
+    start = text.index('### The link emulator')
+    return text[start:text.index('\n### ', start + 1)]
+
+
+def test_readme_table_lists_every_parameter_with_its_default():
+    rows = {}
+    for names, default in re.findall(r'^\| ((?:`[a-z_.]+`(?:, )?)+) \| `([^`]*)` \|',
+                                     readme_section(), re.MULTILINE):
+        for name in re.findall(r'`([a-z_.]+)`', names):
+            rows[name] = default
+    assert rows == {name: str(default) for name, (default, _) in PARAMETERS.items()}
+
+
+def readme_example():
+    """Return the README's example as [(domain, executable, arguments)], one per command."""
+    block = readme_section().split('```\n')[1]
+    commands = []
+    for line in block.replace('\\\n', ' ').splitlines():
+        if line.startswith('ROS_DOMAIN_ID='):
+            words = shlex.split(line)
+            assert words[1:4] == ['ros2', 'run', 'kraft_master_driver']
+            commands.append((int(words[0].split('=')[1]), words[4], words[5:]))
+    return commands
+
+
+def test_the_readme_example_relays_pose_to_the_slave_and_its_wrench_back(install_prefix):
+    domains = {}
+    processes = []
+    example = readme_example()
+    assert [executable for _, executable, _ in example] == [
+        'kraft_master_node', 'kraft_master_slave_sim', 'kraft_master_link_emulator']
+    for domain, _, _ in example:
+        domains.setdefault(domain, next_domain_id())
+    sides = {}
+    try:
+        for domain, executable, arguments in example:
+            arguments = [re.sub(r'^slave_domain_id:=(\d+)$',
+                                lambda m: f'slave_domain_id:={domains[int(m.group(1))]}', a)
+                         for a in arguments]
+            processes.append(subprocess.Popen(
+                [str(executable_path(install_prefix, executable)), *arguments],
+                env=installed_env(install_prefix, domains[domain]), stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT, text=True))
+        master, slave = (Side(domains[d]) for d in sorted(domains))
+        sides = {'master': master, 'slave': slave}
+        wrenches = Arrivals(master, WrenchStamped, 'wrench')
+        slave_poses = Arrivals(slave, PoseStamped, 'slave_pose')
+        # The slave moves once the driver's pose reached it; its wrench comes back delayed.
+        wait_for(lambda: len(slave_poses.records) > 10 and len(wrenches.records) > 10,
+                 timeout=90.0)
+        assert wrenches.delays().min() > 0.05
+        emulator = processes[-1]
+        emulator.send_signal(signal.SIGINT)
+        output = emulator.communicate(timeout=30)[0]
+        assert emulator.returncode == 0, output
+        assert re.search(r'to_slave: received [1-9]', output), output
+        assert re.search(r'to_master: received [1-9]', output), output
+    finally:
+        for side in sides.values():
+            side.close()
+        for process in processes:
+            if process.poll() is None:
+                process.kill()
+            process.communicate(timeout=10)

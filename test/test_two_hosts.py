@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 from driver_harness import executable, installed_env, next_domain_id
-from netns import NamespacesRefused, namespaces_of_this_process, TwoHosts
+from netns import namespaces_of_this_process, NamespacesRefused, TwoHosts
 import pytest
 
 HERE = pathlib.Path(__file__).resolve().parent
@@ -113,7 +113,7 @@ def running(pid):
     return stat.rpartition(')')[2].split()[0] != 'Z'
 
 
-SIGNALLED_RUN = '''
+SIGNALLED_RUN = """
 import sys, time
 sys.path.insert(0, {here!r})
 from netns import TwoHosts
@@ -121,7 +121,7 @@ with TwoHosts() as (a, b):
     a.popen(['sleep', '600'])
     print(a.name, b.name, flush=True)
     time.sleep(600)
-'''
+"""
 
 
 def test_a_terminated_run_deletes_its_namespaces_and_processes():
