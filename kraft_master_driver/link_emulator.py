@@ -319,6 +319,7 @@ class LinkEmulatorNode(Node):
             rclpy.try_shutdown(context=self.slave_context)
         super().destroy_node()
 
+
 def main(args=None):
     """Run the emulator until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
     # The release thread must get the interpreter lock soon after its due time.
