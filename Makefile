@@ -14,6 +14,8 @@ PACKAGE_STAMP := $(VENV)/.installed-package
 RUNTIME := $(RUN_STAMP) $(PACKAGE_STAMP)
 DEVELOPMENT := $(DEV_STAMP) $(PACKAGE_STAMP)
 DURATION ?= 20
+DELAY_MS ?= 0
+PASSIVITY ?= off
 
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
@@ -53,7 +55,8 @@ $(PACKAGE_STAMP): setup.py setup.cfg | $(VPY)
 	@touch $@
 
 demo: $(RUNTIME)
-	$(VPY) -m kraft_master_driver.demo --duration $(DURATION)
+	$(VPY) -m kraft_master_driver.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
+		--passivity $(PASSIVITY)
 
 test: $(DEVELOPMENT)
 	$(VPY) -m pytest -q

@@ -40,6 +40,9 @@ DRIVER_NAME = 'kraft_master_node'
 WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
 START_TIMEOUT = 60.0  # s for the driver and the slave to come up
 REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
+EMULATOR = [sys.executable, '-m', 'kraft_master_driver.link_emulator', '--ros-args',
+            '-p', 'to_slave.topics:=[pose, master_energy]',
+            '-p', 'to_master.topics:=[wrench, slave_energy, slave_pose]']
 
 
 def _rows(matrix, scales):
@@ -214,8 +217,13 @@ def _stop_on_sigterm(*_):
     raise KeyboardInterrupt
 
 
-def teleoperate(duration, out=sys.stdout):
-    """Run the processes for `duration` s once all are up (or until Ctrl-C), showing them."""
+def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
+    """
+    Run the processes for `duration` s once all are up (or until Ctrl-C), showing them.
+
+    With delay_ms > 0 the slave runs on the next DDS domain and the link emulator relays
+    between them with half of delay_ms each way; passivity turns it on at both ends.
+    """
     log = ProcessLog()
     print(f"The processes' messages go to {log.path}, and are shown here.", file=out,
           flush=True)
@@ -231,9 +239,20 @@ def teleoperate(duration, out=sys.stdout):
         if not port:
             screen.show(log.new_lines(), ['the simulator did not start'])
             return 1
-        processes[:0] = [subprocess.Popen([*DRIVER, '-p', f'port:={port}'], stdout=log.file,
-                                          **child),
-                         subprocess.Popen(SLAVE, stdout=log.file, **child)]
+        passive = ['-p', f'passivity:={str(passivity).lower()}']
+        slave_child = child
+        if delay_ms > 0.0:
+            slave_domain = (int(os.environ.get('ROS_DOMAIN_ID', '0')) + 1) % 233
+            slave_child = dict(child, env=dict(child['env'], ROS_DOMAIN_ID=str(slave_domain)))
+            one_way = delay_ms / 2e3
+            processes.append(subprocess.Popen(
+                [*EMULATOR, '-p', f'slave_domain_id:={slave_domain}',
+                 '-p', f'to_slave.delay:={one_way}', '-p', f'to_master.delay:={one_way}'],
+                stdout=log.file, **child))
+        processes[:0] = [
+            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive], stdout=log.file,
+                             **child),
+            subprocess.Popen([*SLAVE, '--ros-args', *passive], stdout=log.file, **slave_child)]
         readout = Readout()
         return _show(readout, processes, duration, log, screen)
     except KeyboardInterrupt:
@@ -288,10 +307,15 @@ def main(argv=None):
     parser.add_argument('--duration', type=float, default=20.0,
                         help='seconds of teleoperation once driver and slave are up '
                              '(default 20); Ctrl-C ends it earlier')
+    parser.add_argument('--delay-ms', type=float, default=0.0,
+                        help='round trip between master and slave through the link emulator')
+    parser.add_argument('--passivity', choices=('on', 'off'), default='off',
+                        help='time-domain passivity at both ends (default off)')
     args = parser.parse_args(argv)
     print_examples()
     print(f'Simulated teleoperation for {args.duration:g} s (Ctrl-C to stop) ...', flush=True)
-    return teleoperate(args.duration)
+    return teleoperate(args.duration, delay_ms=args.delay_ms,
+                       passivity=args.passivity == 'on')
 
 
 if __name__ == '__main__':

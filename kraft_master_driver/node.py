@@ -15,13 +15,14 @@ import time
 from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver import cdr, kinematics
 from kraft_master_driver.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
 from kraft_master_driver.parameters import (
     check_value, declare_parameters, ParameterError, run_node, Spec)
+from kraft_master_driver.passivity import LinkMonitor, MasterPort
 from kraft_master_driver.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.teleop import (
@@ -39,6 +40,7 @@ SIM_PORT = 'sim'
 GIL_SWITCH_INTERVAL_S = 0.0002
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 POT_NAMES = [f'pot{i}' for i in range(1, 7)]
+VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
 
 
 _NOMINAL = ArmCalibration.nominal('right').to_parameters()['calibration']
@@ -115,6 +117,8 @@ PARAMETERS = {
     'allow_multiple_wrench_sources': Spec(
         False, 'Accept wrenches while more than one publisher is matched on wrench; by '
         'default torques are zero then, as two sources would interleave their forces.'),
+    'passivity': Spec(False, 'Time-domain passivity control of the reflected wrench, fed by '
+                      'the slave_energy topic; false: plain J^T F.', read_only=False),
 }
 
 
@@ -160,6 +164,10 @@ class KraftMasterNode(Node):
             centre_stiffness=tuple(self.config['centre_stiffness']),
             centre_damping=tuple(self.config['centre_damping']))
         self.force.enabled = self.config['force_enabled_at_start']
+        self.master_port = MasterPort()
+        self.master_port.enabled = self.config['passivity']
+        self.slave_link = LinkMonitor()
+        self.slave_energy = (0.0, 0.0, 0.0)
 
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
@@ -174,6 +182,15 @@ class KraftMasterNode(Node):
         self._wrench_sub = self.create_subscription(
             WrenchStamped, 'wrench', self._on_wrench,
             # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        # Energy in, out and dissipated at each port (J), each stamped when sent.
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'master_energy', state_qos,
+                                                event_callbacks=quiet)
+        # The newest only, taken by the loop like the wrenches (the values are monotone).
+        self._slave_energy_sub = self.create_subscription(
+            Vector3Stamped, 'slave_energy', self._on_slave_energy,
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
             callback_group=TakenByLoopThread(),
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
@@ -211,6 +228,7 @@ class KraftMasterNode(Node):
         self.output = None
         self.pose_entries = None  # 0T6 of the newest frame, 16 floats row by row
         self.cartesian_velocity = None
+        self._theta = None  # joint angles of the last frame, for the master port's work
         self.centre = None
         self._running = True
         # Not a daemon: the interpreter waits for the loop to zero the torques on its way out,
@@ -310,6 +328,7 @@ class KraftMasterNode(Node):
                 estimate = None
                 if result is None:
                     self.velocity.reset()
+                    self._theta = None
                     self._warn_no_reply()
                 else:
                     if self._replies_missing:
@@ -357,11 +376,13 @@ class KraftMasterNode(Node):
         c0 = time.thread_time_ns()
         self._take_wrenches()
         output = None
-        if estimate is not None:
+        if estimate is None:
+            self.master_port.idle(time.monotonic_ns())
+        else:
             output = self.force.compute(
                 estimate.rotation, estimate.jacobian, time.monotonic_ns(),
                 pose=None if self.centre is None else self._pose(), centre=self.centre,
-                cartesian_velocity=self.cartesian_velocity)
+                cartesian_velocity=self.cartesian_velocity, port=self.master_port)
             if output.state == STALE and self._last_force_state != STALE:
                 self.get_logger().warning(
                     f'no wrench for {self.config["wrench_timeout"]:g} s (wrench_timeout): '
@@ -389,6 +410,11 @@ class KraftMasterNode(Node):
                     self._on_wrench(taken[0])
         if refused:
             self.force.clear()
+        handle = self._slave_energy_sub.handle
+        with handle:
+            taken = handle.take_message(Vector3Stamped, True)
+        if taken is not None:
+            self._on_slave_energy(taken[0])
         if sources != self._wrench_sources:
             self._wrench_sources = sources
             if refused:
@@ -456,9 +482,13 @@ class KraftMasterNode(Node):
         """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
         theta = self.calibration.frame_to_joints(result.frame.pots)
         pose, jacobian = kinematics.forward_and_jacobian_entries(theta, self.arm, self.lengths)
+        previous, self._theta = self._theta, theta
         velocity = self.velocity.update(theta, result.receive_ns)
         jacobian = [jacobian[row:row + 6] for row in range(0, 36, 6)]
         self.cartesian_velocity = [sum(map(operator.mul, row, velocity)) for row in jacobian]
+        if previous is not None:
+            step = [now - before for now, before in zip(theta, previous)]
+            self.master_port.moved([sum(map(operator.mul, row, step)) for row in jacobian])
         self.pose_entries = pose
         self.loop.frames += 1
         return Estimate(theta, velocity, pose, (pose[0:3], pose[4:7], pose[8:11]), jacobian)
@@ -482,6 +512,7 @@ class KraftMasterNode(Node):
         self._pose_cdr = cdr.StampedDoublesEncoder(base, 7)
         self._pots_cdr = cdr.JointStateEncoder(base, POT_NAMES, (6, 0, 0))
         self._twist_cdr = cdr.StampedDoublesEncoder(base, 6)
+        self._energy_cdr = cdr.StampedDoublesEncoder(base, 3)
 
     def _publish_state(self, result, estimate):
         sec, nanosec = divmod(result.receive_ns, 1_000_000_000)
@@ -493,6 +524,9 @@ class KraftMasterNode(Node):
                            *kinematics.rotation_to_quaternion(estimate.rotation))))
         self.pots_pub.publish(self._pots_cdr.encode(
             sec, nanosec, [float(count) for count in result.frame.pots], (), ()))
+        port = self.master_port
+        self.energy_pub.publish(self._energy_cdr.encode(
+            sec, nanosec, (port.energy_in, port.energy_out, port.dissipated)))
         if self.config['rate_command_enabled'] and self.centre is not None:
             linear, angular = rate_command(self._pose(), self.centre, *self.config['rate_gain'])
             self.rate_pub.publish(self._twist_cdr.encode(
@@ -508,6 +542,16 @@ class KraftMasterNode(Node):
         response.message = 'force output ' + ('enabled' if request.data else 'disabled')
         self.get_logger().info(response.message)
         return response
+
+    def _on_slave_energy(self, data):
+        try:
+            sec, nanosec, _, energies = VECTOR3_STAMPED.decode(data)
+        except ValueError as error:
+            self.get_logger().warning(f'slave_energy ignored: {error}', throttle_duration_sec=1.0)
+            return
+        self.master_port.credit(energies[0])
+        self.slave_energy = tuple(energies)
+        self.slave_link.add(sec * 1_000_000_000 + nanosec, time.time_ns())
 
     def _on_set_center(self, request, response):
         pose = self._pose()
@@ -540,6 +584,8 @@ class KraftMasterNode(Node):
                                     for key, value in changes.items() if key in force_keys})
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
+        if 'passivity' in changes:
+            self.master_port.enabled = changes['passivity']
         if 'velocity_cutoff_hz' in changes:
             self.velocity.cutoff_hz = changes['velocity_cutoff_hz']
         self.config.update(changes)
@@ -587,6 +633,7 @@ class KraftMasterNode(Node):
         elif self._wrench_sources > 1 and not self.config['allow_multiple_wrench_sources']:
             level, message = DiagnosticStatus.WARN, f'torques zero: {self._several_sources()}'
             values['force state'] = 'several_sources'
+        values.update(self._passivity_values())
         port = self.config['port']
         status = DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: {self.arm} Kraft Master',
@@ -596,6 +643,23 @@ class KraftMasterNode(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
+
+    def _passivity_values(self):
+        """Diagnostics of the channel: passivity, energies at each port, delay and loss."""
+        port = self.master_port
+        values = {'passivity': 'on' if port.enabled else 'off'}
+        for side, (energy_in, energy_out, dissipated) in (
+                ('master', (port.energy_in, port.energy_out, port.dissipated)),
+                ('slave', self.slave_energy)):
+            values.update({f'{side} energy in (J)': f'{energy_in:.4f}',
+                           f'{side} energy out (J)': f'{energy_out:.4f}',
+                           f'{side} energy dissipated (J)': f'{dissipated:.4f}'})
+        values['master energy observed (J)'] = f'{port.observed:.4f}'
+        link = self.slave_link.summary()
+        if link is not None:
+            values.update(_milliseconds('slave to master delay', link[:3]))
+            values['slave to master loss (%)'] = f'{100.0 * link[3]:.1f}'
+        return values
 
     # -- shutdown ------------------------------------------------------------------------
 

@@ -21,11 +21,13 @@ import threading
 import time
 from typing import NamedTuple
 
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver import cdr, kinematics
 from kraft_master_driver.node import TakenByLoopThread
 from kraft_master_driver.parameters import (
     declare_parameters, ParameterError, run_node, Spec)
+from kraft_master_driver.passivity import LinkMonitor, SlavePort
 from kraft_master_driver.simulator import Workspace
 import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -247,6 +249,7 @@ def integrate_quaternion(quaternion, angular_velocity, dt):
 
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 TWIST_STAMPED = cdr.StampedDoublesDecoder('TwistStamped', 6)
+VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
 
 
 def master_centre(arm):
@@ -293,6 +296,10 @@ PARAMETERS = {
     'box.damping': Spec(20.0, 'Soft box damping (N*s/m).'),
     'base_frame': Spec('kraft_master_base', "frame_id of the wrench: the driver's base_frame."),
     'slave_frame': Spec('slave_world', 'frame_id of slave_pose.'),
+    'passivity': Spec(False, "Position mode: time-domain passivity control of the master's "
+                      'motion, fed by the master_energy topic; false: follow it as it comes.'),
+    'drift_gain': Spec(2.0, 'Rate at which passivity drift is given back with spare energy '
+                       '(1/s).', low=0.0, high=1000.0),
 }
 
 
@@ -321,6 +328,9 @@ class SlaveSimNode(Node):
                                 box if box.stiffness > 0.0 else None)
         except ValueError as error:
             raise ParameterError(f'parameter {error}') from None
+        self.port = SlavePort(_number('drift_gain', config['drift_gain']))
+        self.port.enabled = bool(config['passivity'])
+        self.pose_link = LinkMonitor()
         self.mode = config['mode']
         self.base_frame = config['base_frame']
         self.slave_frame = config['slave_frame']
@@ -338,11 +348,15 @@ class SlaveSimNode(Node):
         msg_type, topic, on_message = (
             (PoseStamped, 'pose', self._on_pose) if self.mode == 'position'
             else (TwistStamped, 'rate_command', self._on_rate_command))
-        self._command_sub = self.create_subscription(
-            msg_type, topic, on_message,
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        self._command_sub = self._newest_only(msg_type, topic, on_message)
+        # The slave port's energy in, out and dissipated (J), stamped as the wrench; the
+        # master's, taken like its pose.
+        self._energy_cdr = cdr.StampedDoublesEncoder(self.base_frame, 3)
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', state_qos)
+        self._master_energy_sub = self._newest_only(
+            Vector3Stamped, 'master_energy', self._on_master_energy)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', state_qos)
+        self.create_timer(1.0, self._publish_diagnostics)
         if self.mode == 'rate':
             self.arm.reset(self.map.offset)
         self.last_tick = time.monotonic()
@@ -360,9 +374,16 @@ class SlaveSimNode(Node):
                 'its first pose' if centre is None
                 else '(' + ', '.join(f'{v:.4f}' for v in centre) + ') m')))
 
-    def _take_command(self):
-        """Hand the newest pose or rate command (CDR bytes), if one came, to its handler."""
-        subscription = self._command_sub
+    def _newest_only(self, msg_type, topic, on_message):
+        """Subscribe to `topic` for _take_newest: raw, depth 1, never run by the executor."""
+        return self.create_subscription(
+            msg_type, topic, on_message,
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+
+    def _take_newest(self, subscription):
+        """Hand the newest message (CDR bytes) of `subscription`, if one came, to its handler."""
         with subscription.handle:
             taken = subscription.handle.take_message(subscription.msg_type, True)
         if taken is not None:
@@ -372,8 +393,12 @@ class SlaveSimNode(Node):
                 self.get_logger().warning(f'{subscription.topic_name} ignored: {error}',
                                           throttle_duration_sec=1.0)
 
+    def _on_master_energy(self, data):
+        self.port.credit(VECTOR3_STAMPED.decode(data)[3][0])
+
     def _on_pose(self, data):
-        values = POSE_STAMPED.decode(data)[3]
+        sec, nanosec, _, values = POSE_STAMPED.decode(data)
+        self.pose_link.add(sec * 1_000_000_000 + nanosec, time.time_ns())
         self.target = self.map.target(values[:3])
         self.orientation = values[3:]
         if self.arm.position is None:
@@ -407,12 +432,17 @@ class SlaveSimNode(Node):
         super().destroy_node()
 
     def _tick(self):
-        self._take_command()
+        self._take_newest(self._command_sub)
+        self._take_newest(self._master_energy_sub)
         now = time.monotonic()
         elapsed, self.last_tick = min(now - self.last_tick, MAX_CATCH_UP), now
         force = np.zeros(3)
         if self.mode == 'position' and self.target is not None:
-            force = self.arm.advance(elapsed, target=self.target)
+            # What a real slave's bridge does: the master's motion goes through the passivity
+            # controller, and the servo tracks the passive command instead of the target.
+            command = self.port.step(self.target.tolist(), self.arm.contact_force().tolist(),
+                                     elapsed)
+            force = self.arm.advance(elapsed, target=np.array(command))
         elif self.mode == 'rate':
             linear = angular = np.zeros(3)
             if self.rate is not None and now - self.rate[2] <= self.timeout:
@@ -422,9 +452,32 @@ class SlaveSimNode(Node):
         sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
         self.wrench_pub.publish(self._wrench_cdr.encode(
             sec, nanosec, self.map.reflect(force).tolist() + [0.0, 0.0, 0.0]))
+        port = self.port
+        self.energy_pub.publish(self._energy_cdr.encode(
+            sec, nanosec, (port.energy_in, port.energy_out, port.dissipated)))
         if self.arm.position is not None:
             self.pose_pub.publish(self._pose_cdr.encode(
                 sec, nanosec, self.arm.position.tolist() + list(self.orientation)))
+
+    def _publish_diagnostics(self):
+        """Publish the slave port's energies, drift, and the master-to-slave delay and loss."""
+        port = self.port
+        values = {'passivity': 'on' if port.enabled else 'off',
+                  'slave energy in (J)': f'{port.energy_in:.4f}',
+                  'slave energy out (J)': f'{port.energy_out:.4f}',
+                  'slave energy dissipated (J)': f'{port.dissipated:.4f}',
+                  'slave energy observed (J)': f'{port.observed:.4f}',
+                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+        link = self.pose_link.summary()
+        if link is not None:
+            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
+                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
+            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
+        array = DiagnosticArray(status=[DiagnosticStatus(
+            name=f'{self.get_fully_qualified_name()}: simulated slave', level=DiagnosticStatus.OK,
+            message=self.mode, values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
 
 
 def main(args=None):

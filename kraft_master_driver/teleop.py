@@ -309,12 +309,14 @@ class ForceReflection:
         counters.update({f'rejected_{key}': n for key, n in self.rejections.items()})
         return counters
 
-    def _idle(self, state):
+    def _idle(self, state, port=None, now_ns=0):
         self._was_saturated = False
+        if port is not None:
+            port.idle(now_ns)
         return _ZERO_OUTPUTS[state]
 
     def compute(self, rotation, jacobian, now_ns, pose=None, centre=None,
-                cartesian_velocity=None):
+                cartesian_velocity=None, port=None):
         """
         Return the TorqueOutput for this cycle.
 
@@ -323,22 +325,24 @@ class ForceReflection:
         pose and centre (4x4 0T6 arrays, metres) feed the return-to-centre spring,
         cartesian_velocity (vx, vy, vz, wx, wy, wz of the wrist in {0}, i.e. 0J dtheta) its
         damper; each acts only while its coefficients are non-zero and its inputs given.
+        port (passivity.MasterPort), with cartesian_velocity, limits the reflected wrench to
+        the energy the far end has sent, before the centre terms and the torque limits.
         """
         hot = self._hot
         settings = hot.settings
         latest = self._latest
         if not settings.enabled:
-            return self._idle(DISABLED)
+            return self._idle(DISABLED, port, now_ns)
         if latest is None:
-            return self._idle(NO_WRENCH)
+            return self._idle(NO_WRENCH, port, now_ns)
         if type(latest) is Rejection:
-            return self._idle(REJECTED)
+            return self._idle(REJECTED, port, now_ns)
         # A large negative age (receipt stamped in the future) is as doubtful as a large one.
         if abs(now_ns - latest.received_ns) > hot.timeout_ns:
             if latest is not self._tripped:
                 self._tripped = latest
                 self._watchdog_trips += 1
-            return self._idle(STALE)
+            return self._idle(STALE, port, now_ns)
 
         scale = settings.force_scale
         fx, fy, fz, mx, my, mz = latest.wrench
@@ -348,6 +352,8 @@ class ForceReflection:
         else:
             wrench = [fx, fy, fz, mx, my, mz]
         wrench = [scale * x for x in wrench]
+        if port is not None and cartesian_velocity is not None:
+            wrench = port.step(wrench, _as_lists(cartesian_velocity), now_ns)
         if hot.stiffness is not None and pose is not None and centre is not None:
             dp, dw = kinematics.pose_difference(pose, centre)
             wrench = _minus_product(wrench, hot.stiffness, dp.tolist() + dw.tolist())
@@ -362,13 +368,17 @@ class ForceReflection:
             torques[1] -= torques[2]  # kinematics.actuator_torques, inlined
         if not all(map(math.isfinite, torques)):
             self._non_finite_results += 1
-            return self._idle(REJECTED)
+            if port is not None:
+                port.scaled(0.0)  # nothing reflected after all
+            return self._idle(REJECTED, port, now_ns)
         limits = settings.torque_limits
         saturated = any(abs(tau) > limit for tau, limit in zip(torques, limits))
         if saturated:
             # One factor for the whole vector keeps its direction; the clamp only trims rounding.
             peak = max(abs(tau) / limit for tau, limit in zip(torques, limits))
             torques = [min(max(tau / peak, -limit), limit) for tau, limit in zip(torques, limits)]
+            if port is not None:
+                port.scaled(1.0 / peak)
             self._saturated_cycles += 1
             if not self._was_saturated:
                 self._saturation_events += 1

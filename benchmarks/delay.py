@@ -1,0 +1,81 @@
+#!/usr/bin/env python3
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Force reflection across a delaying, lossy link: holding contact with the stiff wall.
+
+One row per round trip, loss and passivity setting, each a fresh session of
+test/remote_session.py (two hosts as network namespaces joined by a veth pair; the driver and
+the link emulator on one, the slave on the other, the simulated device in this process): the
+operator pushes the master through the slave's wall, holds, releases.
+Figures, no asserts: a table and JSON (--json).
+"""
+import argparse
+import json
+import pathlib
+import platform
+import subprocess
+import sys
+import tempfile
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(REPO), str(REPO / 'test')]
+
+from driver_harness import PACKAGE  # noqa: E402, I100
+import remote_session as session  # noqa: E402
+
+ROUND_TRIPS_MS = (0, 20, 50, 100, 250, 500)
+LOSSES = (0.0, 0.01, 0.1)
+
+
+def build(workdir):
+    """Build and install the package with colcon into `workdir`; return the install prefix."""
+    colcon = pathlib.Path(sys.executable).parent / 'colcon'
+    subprocess.run([str(colcon), '--log-base', str(workdir / 'log'), 'build', '--base-paths',
+                    str(REPO), '--build-base', str(workdir / 'build'), '--install-base',
+                    str(workdir / 'install')], cwd=workdir, check=True,
+                   stdout=subprocess.DEVNULL)
+    return workdir / 'install' / PACKAGE
+
+
+COLUMNS = (('rtt ms', 'round_trip_ms', '{:.0f}'), ('loss %', 'loss_pct', '{:.0f}'),
+           ('passivity', 'passivity', '{}'), ('master p-p mm', 'master_pp_mm', '{:.2f}'),
+           ('slave pen. mm', 'slave_penetration_mm', '{:.2f}'),
+           ('channel E J', 'energy_generated_j', '{:+.4f}'),
+           ('F slave N', 'force_slave_n', '{:.2f}'), ('F felt N', 'force_felt_n', '{:.2f}'),
+           ('felt/slave', 'felt_ratio', '{:.3f}'), ('drift mm', 'drift_mm', '{:.2f}'),
+           ('pose->slave p99 ms', 'pose_to_slave_p99_ms', '{:.2f}'),
+           ('wrench->driver p99 ms', 'wrench_to_driver_p99_ms', '{:.2f}'))
+
+
+def main(argv=None):
+    """Run every row (or those chosen), print the table, write JSON if asked."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('--round-trips', type=float, nargs='+', default=ROUND_TRIPS_MS)
+    parser.add_argument('--losses', type=float, nargs='+', default=LOSSES,
+                        help='fractions, e.g. 0 0.01 0.1')
+    parser.add_argument('--passivity', choices=('off', 'on', 'both'), default='both')
+    parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
+    args = parser.parse_args(argv)
+    modes = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.passivity]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix='kmd_delay_') as workdir:
+        prefix = build(pathlib.Path(workdir))
+        print(' | '.join(title for title, _, _ in COLUMNS), flush=True)
+        for seed, (round_trip, loss, passivity) in enumerate(
+                (r, s, p) for r in args.round_trips for s in args.losses for p in modes):
+            row = {'round_trip_ms': round_trip, 'loss_pct': 100.0 * loss,
+                   'passivity': 'on' if passivity else 'off',
+                   **session.run_row(prefix, round_trip, loss, passivity, seed)}
+            rows.append(row)
+            print(' | '.join(form.format(row[key]) for _, key, form in COLUMNS), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({
+            'machine': platform.node(), 'slave': session.SLAVE,
+            'wall_below_m': session.WALL_BELOW, 'past_m': session.PAST, 'hold_s': session.HOLD,
+            'window_s': session.WINDOW, 'rows': rows}, indent=1))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

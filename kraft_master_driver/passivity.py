@@ -1,0 +1,236 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Time-domain passivity (TDPA) for force reflection across a delaying, lossy network.
+
+Pure logic, no ROS. Each end of the communication channel keeps the energy that flowed into
+the channel at its port (energy_in) and out of it (energy_out), and sends its energy_in to
+the other end. The channel stays passive if, at each end, what leaves never exceeds what the
+other end has put in as far as this end knows (Ryu, Artigas and Preusche, Mechatronics 2010):
+
+    observed = remote_energy_in - energy_out >= 0
+
+When a step would make it negative, the port's passivity controller dissipates exactly the
+excess in that step (Hannaford and Ryu, IEEE TRA 2002):
+
+- MasterPort (the channel hands a force to the operator): the wrench is scaled down,
+  F' = k F with 0 <= k < 1, so that F' . v dt, the energy predicted to reach the hand, drops by
+  the excess. (The damper F - alpha v of Hannaford and Ryu, driven by a filtered velocity
+  that lags the motion, pumped energy into the hand in benchmarks/delay_model.py; scaling never
+  turns the wrench and takes only energy that would leave.)
+- SlavePort (the channel hands a motion to the slave): a variable series damper on the
+  commanded velocity, v' = v + beta F, so that -F . v' dt, the energy handed to the
+  environment, drops by the excess. What it takes off the motion is the master-slave drift;
+  the port gives it back only with energy to spare (Coelho et al. 2019): freely in free space,
+  within the surplus in contact.
+
+Sign conventions (both in the master's base frame, wrench and twist at the wrist):
+master port power into the channel P_m = -F_m . v_m (F_m: wrench on the operator's hand,
+v_m: the master's twist); slave port power P_s = F_s . v_s (F_s: the environment's force on
+the slave, v_s: the slave's commanded velocity).
+"""
+import math
+import operator
+
+MAX_STEP = 0.05  # s: a longer gap between two steps is integrated as this long
+
+
+def _dot(a, b):
+    return sum(map(operator.mul, a, b))
+
+
+class PortEnergy:
+    """
+    The energy bookkeeping of one port: in, out, dissipated, and the other end's credit.
+
+    energy_in and energy_out only grow; remote_in is the largest energy_in received from the
+    other end, so a lost, late or reordered sample only delays credit.
+    """
+
+    def __init__(self):
+        """Start with nothing in, out or received."""
+        self.energy_in = 0.0
+        self.energy_out = 0.0
+        self.dissipated = 0.0
+        self.remote_in = 0.0
+        self.enabled = True
+
+    def credit(self, remote_energy_in):
+        """Take the other end's energy_in (J); a smaller or non-finite value is ignored."""
+        if math.isfinite(remote_energy_in) and remote_energy_in > self.remote_in:
+            self.remote_in = remote_energy_in
+
+    @property
+    def observed(self):
+        """Return the passivity observer (J): the other end's credit minus what left here."""
+        return self.remote_in - self.energy_out
+
+    def _excess(self, power_out, dt):
+        """Return the energy (J) by which a step handing out power_out (W) would overdraw."""
+        if not self.enabled or power_out <= 0.0:
+            return 0.0
+        return max(self.energy_out + power_out * dt - self.remote_in, 0.0)
+
+    def _account(self, power_out, dt, dissipated):
+        """Book one step of power_out (W, negative: power in) after `dissipated` (J)."""
+        if power_out > 0.0:
+            self.energy_out += power_out * dt
+        else:
+            self.energy_in -= power_out * dt
+        self.dissipated += dissipated
+
+
+class MasterPort(PortEnergy):
+    """
+    The master's end: limits the force the operator feels (scales the wrench down).
+
+    Each cycle, moved() books the work the wrench applied since the last sample did over the
+    displacement measured since (exact for a force held between samples, whatever the velocity
+    estimate), then step() limits the next wrench to the credit left, predicting the motion
+    until the next sample from the velocity estimate.
+    """
+
+    def __init__(self):
+        """Start idle; the first step() only sets the clock."""
+        super().__init__()
+        self._applied = None  # the wrench applied since the last sample
+        self._last_ns = None
+        self._period = 0.0
+
+    def moved(self, displacement):
+        """Book the work of the wrench applied over `displacement` (6 floats: m and rad)."""
+        if self._applied is not None:
+            self._account(_dot(self._applied, displacement), 1.0, 0.0)
+        self._applied = None
+
+    def step(self, force, velocity, now_ns):
+        """
+        Return the wrench (6 floats) to apply in place of `force` until the next sample.
+
+        force: the reflected wrench on the operator's hand; velocity: the master's twist (its
+        estimate), both 6 floats in one frame; now_ns: monotonic time of this step. Call
+        scaled() if only part of the result is applied.
+        """
+        if self._last_ns is not None:
+            self._period = min((now_ns - self._last_ns) / 1e9, MAX_STEP)
+        self._last_ns = now_ns
+        dt = self._period
+        power_out = _dot(force, velocity)
+        # At most this step's own outflow: a deficit the prediction left waits for credit.
+        excess = min(self._excess(power_out, dt), power_out * dt)
+        if excess > 0.0:
+            keep = 1.0 - excess / (power_out * dt)
+            force = [keep * f for f in force]
+            self.dissipated += excess
+        self._applied = force
+        return force
+
+    def scaled(self, factor):
+        """Note that the last wrench was applied scaled by `factor` (0..1)."""
+        if self._applied is not None:
+            self._applied = [factor * f for f in self._applied]
+
+    def idle(self, now_ns):
+        """Note a step with no channel force (zero torque): no energy, the clock moves on."""
+        self._last_ns = now_ns
+        self._applied = None
+
+
+class SlavePort(PortEnergy):
+    """
+    The slave's end: turns the (delayed) master target into the slave's commanded position.
+
+    Each step the channel's motion is the change of the target; the port adds the passivity
+    controller's series damper and the drift compensation, and integrates the result into
+    `command`, the position a slave's servo should track. drift = target - command.
+    """
+
+    def __init__(self, drift_gain=2.0):
+        """drift_gain (1/s): rate at which drift is given back when energy allows."""
+        super().__init__()
+        self.drift_gain = float(drift_gain)
+        self.command = None
+        self._target = None
+
+    def reset(self, position):
+        """Start at rest with the target and the command at `position` (3 floats)."""
+        self._target = list(position)
+        self.command = list(position)
+
+    @property
+    def drift(self):
+        """Return target - command (3 floats, m), zeros before reset()."""
+        if self.command is None:
+            return [0.0, 0.0, 0.0]
+        return [t - c for t, c in zip(self._target, self.command)]
+
+    def step(self, target, force, dt):
+        """
+        Move the command toward `target` passively over `dt` s; return the command.
+
+        force: the environment's force on the slave now (3 floats, N); target: where the
+        master's (delayed) motion asks the slave to be (3 floats, m).
+        """
+        if self.command is None:
+            self.reset(target)
+            return self.command
+        if dt <= 0.0:
+            return self.command
+        dt = min(dt, MAX_STEP)
+        velocity = [(new - old) / dt for new, old in zip(target, self._target)]
+        self._target = list(target)
+        velocity, power_out, dissipated = self._passive(velocity, force, dt)
+        # Give drift back with what is left over after this step, never more.
+        drift = self.drift
+        if any(drift):
+            back = [v + self.drift_gain * d for v, d in zip(velocity, drift)]
+            back_power = -_dot(force, back)
+            if self._excess(back_power, dt) == 0.0:
+                velocity, power_out = back, back_power
+        self._account(power_out, dt, dissipated)
+        self.command = [c + v * dt for c, v in zip(self.command, velocity)]
+        return self.command
+
+    def _passive(self, velocity, force, dt):
+        """Return (velocity, power out, dissipated) with the series damper applied if needed."""
+        power_out = -_dot(force, velocity)
+        excess = self._excess(power_out, dt)
+        force_work = dt * _dot(force, force)
+        if excess > 0.0 and force_work > 0.0:
+            beta = excess / force_work
+            velocity = [v + beta * f for v, f in zip(velocity, force)]
+            power_out -= excess / dt
+            return velocity, power_out, excess
+        return velocity, power_out, 0.0
+
+
+class LinkMonitor:
+    """
+    One-way delay and loss of a stream of stamped messages, per window.
+
+    Both ends must share a clock (one machine, or hosts synchronised by NTP/PTP). Loss is
+    counted from the gaps between stamps against the stream's median interval.
+    """
+
+    def __init__(self):
+        """Start an empty window."""
+        self._delays = []
+        self._stamps = []
+
+    def add(self, stamp_ns, receipt_ns):
+        """Note one message stamped stamp_ns and received at receipt_ns (same clock)."""
+        self._delays.append(receipt_ns - stamp_ns)
+        self._stamps.append(stamp_ns)
+
+    def summary(self):
+        """Return (delay median, p99, max in s, lost fraction) of the window and start anew."""
+        delays, stamps = sorted(self._delays), sorted(self._stamps)
+        self._delays, self._stamps = [], []
+        if len(stamps) < 3:
+            return None
+        gaps = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        interval = gaps[len(gaps) // 2]
+        expected = (stamps[-1] - stamps[0]) / interval + 1 if interval > 0 else len(stamps)
+        count = len(delays)
+        return (delays[count // 2] / 1e9, delays[min(count - 1, int(0.99 * count))] / 1e9,
+                delays[-1] / 1e9, max(0.0, 1.0 - len(stamps) / expected))

@@ -1,0 +1,239 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Unit tests of the time-domain passivity observers and controllers (no ROS)."""
+import collections
+import math
+import random
+
+from kraft_master_driver.passivity import LinkMonitor, MasterPort, SlavePort
+from kraft_master_driver.teleop import ForceReflection
+import numpy as np
+import pytest
+
+MS = 1_000_000  # ns
+
+
+def stepped(port, force, velocity, steps=1, start_ms=0):
+    """Run `steps` master cycles 1 ms apart, each moving at `velocity`; return the last force."""
+    port.step([0.0] * 6, [0.0] * 6, start_ms * MS)  # sets the clock
+    port.moved([0.0] * 6)
+    result = None
+    for k in range(1, steps + 1):
+        result = port.step(force, velocity, (start_ms + k) * MS)
+        port.moved([1e-3 * v for v in velocity])
+    return result
+
+
+def test_observer_books_the_work_done_over_the_displacement():
+    port = MasterPort()
+    port.enabled = False
+    # The hand pushes at 0.1 m/s against 5 N: 0.5 W into the channel for 10 ms.
+    stepped(port, [-5.0, 0, 0, 0, 0, 0], [0.1, 0, 0, 0, 0, 0], steps=10)
+    assert port.energy_in == pytest.approx(0.005)
+    assert port.energy_out == 0.0
+    # The device pushes the hand along: 0.5 W out for 4 ms, all of it let through when off.
+    stepped(port, [5.0, 0, 0, 0, 0, 0], [0.1, 0, 0, 0, 0, 0], steps=4, start_ms=100)
+    assert port.energy_out == pytest.approx(0.002)
+    assert port.dissipated == 0.0
+    # Moments and angular velocity count too.
+    stepped(port, [0, 0, 0, 0, 0, -2.0], [0, 0, 0, 0, 0, 0.5], steps=2, start_ms=200)
+    assert port.energy_in == pytest.approx(0.007)
+    # The work is force times the displacement measured, whatever the velocity estimate was.
+    port.step([3.0, 0, 0, 0, 0, 0], [0.0] * 6, 300 * MS)
+    port.moved([0.001, 0, 0, 0, 0, 0])
+    assert port.energy_out == pytest.approx(0.005)
+
+
+def test_credit_is_monotone_and_ignores_bad_values():
+    port = SlavePort()
+    port.credit(1.0)
+    port.credit(0.5)  # late, reordered
+    port.credit(math.nan)
+    port.credit(-math.inf)
+    assert port.remote_in == 1.0
+    port.credit(math.inf)
+    assert port.remote_in == 1.0
+    port.credit(2.0)
+    assert port.remote_in == 2.0
+
+
+def test_master_controller_dissipates_exactly_the_excess():
+    port = MasterPort()
+    port.credit(0.001)
+    force, velocity = [5.0, 1.0, 0, 0, 0, 0.5], [0.1, -0.05, 0, 0, 0, 0.2]
+    power = float(np.dot(force, velocity))  # 0.55 W out: 0.55 mJ per step
+    out = stepped(port, force, velocity, steps=1)
+    assert out == force, 'within the credit nothing changes'
+    out = stepped(port, force, velocity, steps=1, start_ms=10)
+    excess = 2 * power * 1e-3 - 0.001
+    assert port.dissipated == pytest.approx(excess)
+    assert port.energy_out == pytest.approx(0.001)
+    assert port.observed == pytest.approx(0.0, abs=1e-15)
+    # The wrench is scaled down, direction kept, by just the excess.
+    keep = 1.0 - excess / (power * 1e-3)
+    assert out == pytest.approx([keep * f for f in force])
+    assert float(np.dot(out, velocity)) * 1e-3 == pytest.approx(power * 1e-3 - excess)
+    # No credit left: the next step hands out nothing.
+    out = stepped(port, force, velocity, steps=1, start_ms=20)
+    assert float(np.dot(out, velocity)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_master_controller_leaves_energy_in_alone_and_stands_still():
+    port = MasterPort()
+    force = [-5.0, 0, 0, 0, 0, 0]
+    assert stepped(port, force, [0.1, 0, 0, 0, 0, 0], steps=3) == force
+    assert stepped(port, [5.0, 0, 0, 0, 0, 0], [0.0] * 6, steps=3, start_ms=10) == [
+        5.0, 0, 0, 0, 0, 0]
+    assert port.dissipated == 0.0
+
+
+def test_master_booking_follows_what_was_applied():
+    port = MasterPort()
+    port.enabled = False
+    port.step([-4.0, 0, 0, 0, 0, 0], [1.0, 0, 0, 0, 0, 0], 0)
+    port.scaled(0.25)
+    port.moved([0.001, 0, 0, 0, 0, 0])
+    assert port.energy_in == pytest.approx(0.001)
+    port.step([4.0, 0, 0, 0, 0, 0], [1.0, 0, 0, 0, 0, 0], MS)
+    port.idle(2 * MS)  # zero torque after all
+    port.moved([0.001, 0, 0, 0, 0, 0])
+    assert port.energy_out == 0.0
+    port.moved([0.001, 0, 0, 0, 0, 0])  # no second booking of one wrench
+    assert port.energy_out == 0.0
+
+
+def test_force_reflection_books_what_is_sent_after_the_torque_limits():
+    port = MasterPort()
+    port.enabled = False
+    jacobian = np.eye(6)
+    reflection = ForceReflection(torque_limits=(1.0,) * 5, enabled=True)
+    reflection.submit((-4.0, 0, 0, 0, 0, 0), 'base', 0)
+    out = reflection.compute(np.eye(3), jacobian, MS, cartesian_velocity=[1.0, 0, 0, 0, 0, 0],
+                             port=port)
+    port.moved([0.001, 0, 0, 0, 0, 0])
+    assert out.saturated and out.actuator[0] == pytest.approx(-1.0)
+    assert port.energy_in == pytest.approx(1.0 * 1e-3)  # 1 N applied, not 4
+    reflection.enabled = False
+    reflection.compute(np.eye(3), jacobian, 2 * MS, cartesian_velocity=[1.0, 0, 0, 0, 0, 0],
+                       port=port)
+    port.moved([0.001, 0, 0, 0, 0, 0])
+    assert port.energy_in == pytest.approx(1e-3), 'zero torque: no energy'
+
+
+def test_force_reflection_with_passivity_limits_the_felt_force():
+    port = MasterPort()  # on, and no credit from the slave yet
+    reflection = ForceReflection(torque_limits=(100.0,) * 5, enabled=True)
+    reflection.submit((5.0, 0, 0, 0, 0, 0), 'base', 0)
+    velocity = [0.1, 0, 0, 0, 0, 0]
+    reflection.compute(np.eye(3), np.eye(6), 0, cartesian_velocity=velocity, port=port)
+    out = reflection.compute(np.eye(3), np.eye(6), MS, cartesian_velocity=velocity, port=port)
+    assert out.actuator[0] == pytest.approx(0.0, abs=1e-12)
+    port.credit(1.0)
+    out = reflection.compute(np.eye(3), np.eye(6), 2 * MS, cartesian_velocity=velocity,
+                             port=port)
+    assert out.actuator[0] == pytest.approx(5.0)
+
+
+def test_slave_controller_dissipates_exactly_the_excess_and_drifts():
+    port = SlavePort(drift_gain=0.0)
+    port.reset([0.0, 0.0, 0.0])
+    port.credit(0.002)
+    force = [0.0, 0.0, 20.0]  # the wall pushes up; the master asks to go down at 0.1 m/s
+    port.step([0.0, 0.0, -0.0001], force, 1e-3)
+    assert port.energy_out == pytest.approx(0.002)
+    assert port.dissipated == pytest.approx(0.0)
+    command = port.step([0.0, 0.0, -0.0002], force, 1e-3)
+    assert port.energy_out == pytest.approx(0.002)
+    assert port.dissipated == pytest.approx(0.002)
+    assert command == pytest.approx([0.0, 0.0, -0.0001])
+    assert port.drift == pytest.approx([0.0, 0.0, -0.0001])
+
+
+def test_slave_gives_drift_back_in_free_space_and_only_with_spare_energy_in_contact():
+    port = SlavePort(drift_gain=10.0)
+    port.reset([0.0, 0.0, 0.0])
+    force = [0.0, 0.0, 20.0]
+    port.step([0.0, 0.0, -0.001], force, 1e-3)
+    assert port.drift == pytest.approx([0.0, 0.0, -0.001])
+    for _ in range(100):
+        port.step([0.0, 0.0, -0.001], force, 1e-3)  # no credit: the drift stays
+    assert port.drift == pytest.approx([0.0, 0.0, -0.001])
+    port.credit(1.0)
+    port.step([0.0, 0.0, -0.001], force, 1e-3)
+    assert abs(port.drift[2]) < 0.001
+    before = port.energy_out
+    for _ in range(1000):
+        port.step([0.0, 0.0, -0.001], [0.0, 0.0, 0.0], 1e-3)  # free space: no energy
+    assert port.drift == pytest.approx([0.0, 0.0, 0.0], abs=1e-6)
+    assert port.energy_out == before
+
+
+def _channel(round_trip_steps, loss, seed, passivity=True, steps=2000):
+    """
+    Two ports across a delaying, lossy channel fed adversarial forces and motions.
+
+    The master's velocity and the slave's force are random, and the force the channel hands
+    the master is the slave's force from a random delay ago, not the one that came with its
+    velocity: the worst case for energy. The master's velocity estimate is the motion of the
+    next cycle (the guarantee holds to the accuracy of that prediction). Return (generated
+    energy, master, slave).
+    """
+    rng = random.Random(seed)
+    master, slave = MasterPort(), SlavePort(drift_gain=rng.uniform(0.0, 5.0))
+    master.enabled = slave.enabled = passivity
+    dt = 1e-3
+    to_slave, to_master = collections.deque(), collections.deque()
+    forces = collections.deque([[0.0] * 3], maxlen=round_trip_steps + 1)
+    position, target = [0.0] * 3, [0.0] * 3
+    slave.reset(position)
+    master.step([0.0] * 6, [0.0] * 6, 0)
+    for k in range(1, steps):
+        velocity = [rng.uniform(-0.3, 0.3) for _ in range(3)]
+        position = [p + v * dt for p, v in zip(position, velocity)]
+        if rng.random() >= loss:
+            to_slave.append((k + rng.randint(0, round_trip_steps), master.energy_in, position))
+        while to_slave and to_slave[0][0] <= k:
+            _, energy, target = to_slave.popleft()
+            slave.credit(energy)
+        env_force = [rng.uniform(-30.0, 30.0) for _ in range(3)]
+        slave.step(target, env_force, dt)
+        forces.append(env_force)
+        if rng.random() >= loss:
+            to_master.append((k + rng.randint(0, round_trip_steps), slave.energy_in))
+        while to_master and to_master[0][0] <= k:
+            master.credit(to_master.popleft()[1])
+        felt = rng.choice(forces) + [rng.uniform(-1, 1) for _ in range(3)]
+        twist = velocity + [rng.uniform(-1, 1) for _ in range(3)]
+        master.step(felt, twist, k * MS)
+        master.moved([dt * v for v in twist])
+    generated = (master.energy_out + slave.energy_out) - (master.energy_in + slave.energy_in)
+    return generated, master, slave
+
+
+@pytest.mark.parametrize('round_trip_steps', [0, 20, 100, 500])
+@pytest.mark.parametrize('loss', [0.0, 0.1, 0.5])
+def test_channel_never_generates_energy_with_passivity_on(round_trip_steps, loss):
+    for seed in range(2):
+        generated, master, slave = _channel(round_trip_steps, loss, seed)
+        # Each port hands out no more than the other has put in, to rounding.
+        assert master.energy_out <= slave.energy_in + 1e-12
+        assert slave.energy_out <= master.energy_in + 1e-12
+        assert generated <= 1e-12
+
+
+def test_the_same_channel_generates_energy_with_passivity_off():
+    generated, _, _ = _channel(100, 0.1, 0, passivity=False)
+    assert generated > 0.1
+
+
+def test_link_monitor_delay_and_loss():
+    monitor = LinkMonitor()
+    assert monitor.summary() is None
+    for k in range(1000):
+        if k % 10 != 3:  # 10 % lost
+            monitor.add(k * 2 * MS, k * 2 * MS + (5 + k % 3) * MS)
+    median, p99, largest, lost = monitor.summary()
+    assert median == pytest.approx(0.006)
+    assert p99 == pytest.approx(0.007) and largest == pytest.approx(0.007)
+    assert lost == pytest.approx(0.1, abs=0.002)
+    assert monitor.summary() is None, 'each summary starts a new window'
