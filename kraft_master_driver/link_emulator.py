@@ -26,10 +26,10 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.delay_line import DelayLine, LinkModel
-from kraft_master_driver.node import GIL_SWITCH_INTERVAL_S, ParameterError, run_node
-from rcl_interfaces.msg import ParameterDescriptor
+from kraft_master_driver.node import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.parameters import (
+    declare_parameters, ParameterError, run_node, Spec)
 import rclpy
-import rclpy.exceptions
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -39,21 +39,21 @@ TYPE_PATTERN = re.compile(r'^(\w+)/msg/(\w+)$')
 LOG_PERIOD_S = 10.0
 
 PARAMETERS = {
-    'slave_domain_id': (-1, 'DDS domain of the slave side; -1: the domain of the master '
-                            '(then relays must rename their topics).'),
-    'seed': (-1, 'Seed of the loss and jitter draws; -1: a different one each run.'),
-    'to_slave.topics': (['pose'], 'Topics relayed master -> slave: "name", '
-                                  '"source:destination" or "source:destination:pkg/msg/Type".'),
-    'to_master.topics': (['wrench'], 'Topics relayed slave -> master, as to_slave.topics.'),
+    'slave_domain_id': Spec(-1, 'DDS domain of the slave side; -1: the domain of the master '
+                            '(then relays must rename their topics).', low=-1, high=232),
+    'seed': Spec(-1, 'Seed of the loss and jitter draws; -1: a different one each run.'),
+    'to_slave.topics': Spec(['pose'], 'Topics relayed master -> slave: "name", '
+                            '"source:destination" or "source:destination:pkg/msg/Type".'),
+    'to_master.topics': Spec(['wrench'], 'Topics relayed slave -> master, as to_slave.topics.'),
 }
 for _direction in DIRECTIONS:
     PARAMETERS.update({
-        f'{_direction}.delay': (0.0, 'One-way delay (s) added to every message.'),
-        f'{_direction}.jitter': (0.0, 'Extra delay (s) drawn uniformly in [0, jitter]; order '
-                                      'is kept, so a draw that would overtake waits.'),
-        f'{_direction}.loss': (0.0, 'Long-run fraction of messages lost, in [0, 1).'),
-        f'{_direction}.loss_burst': (0.0, 'Mean length of a run of lost messages (Gilbert '
-                                          'chain), >= 1; 0: independent losses.'),
+        f'{_direction}.delay': Spec(0.0, 'One-way delay (s) added to every message.'),
+        f'{_direction}.jitter': Spec(0.0, 'Extra delay (s) drawn uniformly in [0, jitter]; '
+                                     'order is kept, so a draw that would overtake waits.'),
+        f'{_direction}.loss': Spec(0.0, 'Long-run fraction of messages lost, in [0, 1).'),
+        f'{_direction}.loss_burst': Spec(0.0, 'Mean length of a run of lost messages (Gilbert '
+                                         'chain), >= 1; 0: independent losses.'),
     })
 
 
@@ -181,10 +181,10 @@ class Relay:
 class LinkEmulatorNode(Node):
     """Joins both sides, relays the configured topics through one DelayLine per direction."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, params_files=(), **kwargs):
         """Check parameters, join the slave's domain, start relays and the release thread."""
         super().__init__('kraft_master_link_emulator', **kwargs)
-        config = self._declare_parameters()
+        config = declare_parameters(self, PARAMETERS, params_files)
         try:
             models = {}
             for direction in DIRECTIONS:
@@ -241,20 +241,6 @@ class LinkEmulatorNode(Node):
             f'relaying domain {self.master_domain} (master) <-> {slave_domain} (slave); '
             + '; '.join(f'{d}: {", ".join(config[f"{d}.topics"])} with {models[d]}'
                         for d in DIRECTIONS))
-
-    def _declare_parameters(self):
-        values = {}
-        for name, (default, description) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(
-                name=name, description=description, read_only=True,
-                # Numbers may be given as 1 or 1.0: LinkModel.checked() checks them.
-                dynamic_typing=isinstance(default, float))
-            try:
-                values[name] = self.declare_parameter(name, default, descriptor).value
-            except (rclpy.exceptions.InvalidParameterTypeException,
-                    rclpy.exceptions.InvalidParameterValueException) as error:
-                raise ParameterError(f'parameter {name}: {error}') from None
-        return values
 
     def _spin_slave_side(self):
         try:
@@ -324,7 +310,8 @@ def main(args=None):
     """Run the emulator until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
     # The release thread must get the interpreter lock soon after its due time.
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    return run_node(LinkEmulatorNode, 'kraft_master_link_emulator', args)
+    return run_node(LinkEmulatorNode, 'kraft_master_link_emulator',
+                    __doc__.strip().splitlines()[0], PARAMETERS, args)
 
 
 if __name__ == '__main__':

@@ -270,7 +270,8 @@ def test_node_delays_each_direction_by_at_least_its_delay_and_drops_nothing(two_
     assert code == 0, output
     for direction in ('to_slave', 'to_master'):
         received, relayed, dropped = counts(output, direction)
-        assert received == relayed >= 200 and dropped == 0
+        # A message still in the line when Ctrl-C came is received, not relayed.
+        assert received >= relayed >= 200 and dropped == 0
 
 
 def test_node_loses_the_set_fraction_and_keeps_order_under_jitter(two_domains):
@@ -309,7 +310,7 @@ def test_readme_table_lists_every_parameter_with_its_default():
                                      readme_section(), re.MULTILINE):
         for name in re.findall(r'`([a-z_.]+)`', names):
             rows[name] = default
-    assert rows == {name: str(default) for name, (default, _) in PARAMETERS.items()}
+    assert rows == {name: str(spec.default) for name, spec in PARAMETERS.items()}
 
 
 def readme_example():
