@@ -296,10 +296,10 @@ class LinkEmulatorNode(Node):
         """Stop both threads that publish, log what was done, leave the slave's domain."""
         # Both threads must have ended before any publisher they use is destroyed.
         self.releaser.stop()
+        self._log_summary()
         if self.slave_executor is not None:
             self.slave_executor.shutdown()
             self.slave_thread.join()
-        self._log_summary()
         if self.slave_executor is not None:
             self.slave_node.destroy_node()
             rclpy.try_shutdown(context=self.slave_context)

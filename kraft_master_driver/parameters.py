@@ -13,9 +13,11 @@ every refusal into one line on stderr and exit code 1.
 import difflib
 import gc
 import math
+import os
 import re
 import sys
 import textwrap
+import threading
 from typing import NamedTuple
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -386,7 +388,25 @@ def run_node(make_node, program, summary, table, args=None):
         print(f'{program}: {error}', file=sys.stderr)
         exit_code = 1
     finally:
+        watchdog = _exit_if_stuck(program, exit_code)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        watchdog.cancel()
     return exit_code
+
+
+SHUTDOWN_LIMIT_S = 10.0
+
+
+def _exit_if_stuck(program, exit_code):
+    """Return a started timer that ends the process if its shutdown hangs in DDS teardown."""
+    def stuck():
+        print(f'{program}: shutdown did not finish in {SHUTDOWN_LIMIT_S:g} s; exiting',
+              file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        os._exit(exit_code)
+    timer = threading.Timer(SHUTDOWN_LIMIT_S, stuck)
+    timer.daemon = True
+    timer.start()
+    return timer

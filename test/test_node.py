@@ -9,6 +9,7 @@ import re
 import select
 import signal
 import subprocess
+import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -226,6 +227,19 @@ def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
             'the last command must be zero torque'
     finally:
         running.close()
+
+
+def test_a_shutdown_that_hangs_still_ends_the_process():
+    # As if a DDS teardown never returned: the process ends after SHUTDOWN_LIMIT_S, saying so.
+    script = ('import sys, time\n'
+              'from kraft_master_driver import parameters\n'
+              'parameters.SHUTDOWN_LIMIT_S = 0.2\n'
+              'parameters._exit_if_stuck("kraft_master_node", 0)\n'
+              'time.sleep(60)\n')
+    result = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                            timeout=50)
+    assert result.returncode == 0
+    assert result.stderr == 'kraft_master_node: shutdown did not finish in 0.2 s; exiting\n'
 
 
 def scheduling_of_threads(pid):
