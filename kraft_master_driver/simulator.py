@@ -779,8 +779,10 @@ def main(argv=None):
     except ValueError as error:
         parser.error(str(error))
 
-    stop = threading.Event()
-    handlers = {signum: signal.signal(signum, lambda *_: stop.set())
+    # A plain list, not an Event: Event.set() in a handler deadlocks if the signal comes while
+    # this thread holds the Event's lock inside wait() (a full test run once hung so).
+    stop = []
+    handlers = {signum: signal.signal(signum, lambda signum, _frame: stop.append(signum))
                 for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
         with simulator:
@@ -788,8 +790,8 @@ def main(argv=None):
             if simulator.priority_error:
                 print(f'kraft_master_sim: warning: {simulator.priority_error}', file=sys.stderr)
             gc.freeze()  # no full garbage collection passes over the set-up (parameters.run_node)
-            while not stop.wait(0.5):
-                continue
+            while not stop:
+                time.sleep(0.5)
             print(f'kraft_master_sim: stopped, {simulator.stats}', file=sys.stderr)
         if args.record:
             np.save(args.record, np.array(

@@ -11,7 +11,6 @@ wrench, master_energy, slave_energy, diagnostics). Prints 'ready' once subscribe
 import json
 import signal
 import sys
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -57,11 +56,11 @@ def main(topics):
         node.create_subscription(msg_type, topic, _recorder(topic, records[topic], values), qos)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    stop = threading.Event()
+    stop = []  # not an Event: Event.set() in a signal handler can deadlock
     for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
+        signal.signal(signum, lambda signum, _frame: stop.append(signum))
     print('ready', flush=True)
-    while not stop.is_set():
+    while not stop:
         executor.spin_once(timeout_sec=0.05)
     print(json.dumps(records), flush=True)
     executor.shutdown()

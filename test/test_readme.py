@@ -5,6 +5,7 @@ import re
 
 from driver_harness import REPO
 from kraft_master_driver.node import PARAMETERS
+from kraft_master_driver.simulator import OPERATORS
 import pytest
 
 README = (REPO / 'README.md').read_text()
@@ -62,3 +63,9 @@ def test_the_readme_table_has_no_stale_parameter():
 @pytest.mark.parametrize('command', ['make demo', 'make test'])
 def test_readme_starts_with_the_two_commands(command):
     assert command in README[:1500]
+
+
+def test_the_simulator_section_names_every_operator():
+    section = README.split('## The simulated hand controller', 1)[1].split('\n## ', 1)[0]
+    listed = re.search(r'\(`--operator ([^)]*)\)', section).group(1)
+    assert re.findall(r'`?(\w+)`', listed) == list(OPERATORS)
