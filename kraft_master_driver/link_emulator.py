@@ -37,6 +37,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 DIRECTIONS = ('to_slave', 'to_master')
 TYPE_PATTERN = re.compile(r'^(\w+)/msg/(\w+)$')
 LOG_PERIOD_S = 10.0
+RECHECK_S = 0.1  # s: the release thread looks at `running` at least this often
 
 PARAMETERS = {
     'slave_domain_id': Spec(-1, 'DDS domain of the slave side; -1: the domain of the master '
@@ -102,7 +103,10 @@ class Releaser(threading.Thread):
             with self.wake:
                 now = time.monotonic()
                 if not self.queue or self.queue[0][0] > now:
-                    self.wake.wait(self.queue[0][0] - now if self.queue else None)
+                    # Bounded: Ctrl-C raises KeyboardInterrupt anywhere in the main thread,
+                    # even inside notify(), and a lost wake-up must not keep stop() waiting.
+                    self.wake.wait(min(self.queue[0][0] - now, RECHECK_S) if self.queue
+                                   else RECHECK_S)
                     continue
                 _, _, relay, data, admitted = heapq.heappop(self.queue)
             try:

@@ -11,6 +11,7 @@ params files before rcl reads them (one line naming the file, the line and the f
 every refusal into one line on stderr and exit code 1.
 """
 import difflib
+import faulthandler
 import gc
 import math
 import os
@@ -400,10 +401,11 @@ SHUTDOWN_LIMIT_S = 10.0
 
 
 def _exit_if_stuck(program, exit_code):
-    """Return a started timer that ends the process if its shutdown hangs in DDS teardown."""
+    """Return a started timer that ends the process if its shutdown hangs (DDS teardown can)."""
     def stuck():
-        print(f'{program}: shutdown did not finish in {SHUTDOWN_LIMIT_S:g} s; exiting',
-              file=sys.stderr, flush=True)
+        print(f'{program}: shutdown did not finish in {SHUTDOWN_LIMIT_S:g} s; exiting; its '
+              'threads:', file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(all_threads=True)  # where it hangs, for a bug report
         sys.stdout.flush()
         os._exit(exit_code)
     timer = threading.Timer(SHUTDOWN_LIMIT_S, stuck)

@@ -9,15 +9,15 @@ wrench, master_energy, slave_energy, diagnostics). Prints 'ready' once subscribe
 {topic: [[monotonic receipt time, values...], ...]} (diagnostics: [time, {key: value}]).
 """
 import json
-import signal
 import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 
 
 def _xyz(v):
@@ -37,33 +37,32 @@ TOPICS = {
 }
 
 
-def _recorder(topic, kept, values):
-    def record(msg):
+def _recorder(topic, kept):
+    def record(data):
         if not kept:
             print(f'first {topic}', flush=True)
-        kept.append([time.monotonic(), *values(msg)])
+        kept.append((time.monotonic(), data))
     return record
 
 
 def main(topics):
-    """Record until a signal, then print the records; return 0."""
+    """Record until SIGINT or SIGTERM, then print the records; return 0."""
     rclpy.init()
     node = rclpy.create_node('remote_recorder')
-    records = {topic: [] for topic in topics}
+    raw = {topic: [] for topic in topics}
     qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
     for topic in topics:
-        msg_type, values = TOPICS[topic]
-        node.create_subscription(msg_type, topic, _recorder(topic, records[topic], values), qos)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    stop = []  # not an Event: Event.set() in a signal handler can deadlock
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda signum, _frame: stop.append(signum))
+        # Raw: a callback only keeps the bytes (1 kHz topics cost little); decoded at the end.
+        node.create_subscription(TOPICS[topic][0], topic, _recorder(topic, raw[topic]), qos,
+                                 raw=True)
     print('ready', flush=True)
-    while not stop:
-        executor.spin_once(timeout_sec=0.05)
+    try:
+        rclpy.spin(node)  # rclpy turns SIGINT and SIGTERM into the end of the spin
+    except (KeyboardInterrupt, ExternalShutdownException, RuntimeError):
+        pass  # RuntimeError: the signal shut the context down while the spin built a wait set
+    records = {topic: [[t, *TOPICS[topic][1](deserialize_message(data, TOPICS[topic][0]))]
+                       for t, data in kept] for topic, kept in raw.items()}
     print(json.dumps(records), flush=True)
-    executor.shutdown()
     node.destroy_node()
     rclpy.try_shutdown()
     return 0

@@ -6,7 +6,8 @@ Teleoperation across a delaying, lossy link, one push into the stiff wall (tests
 Two hosts (netns.TwoHosts: two network namespaces joined by a veth pair): on the master host
 the installed driver at 1 kHz on one DDS domain, driving the simulated hand controller that runs
 in this process ('hold' operator) over its pseudo-terminal, and kraft_master_link_emulator
-relaying to the slave's domain with half the round trip each way and the given loss; on the
+relaying to the slave's domain with half the round trip each way and the given loss (with
+neither delay nor loss, no emulator: driver and slave share a domain); on the
 slave host the installed slave simulator. A recorder on each host (remote_recorder.py). The
 operator's hand pulls the master PAST m through the slave's wall (the slave follows one to one)
 over RAMP s, holds HOLD s, goes back over RAMP s and rests SETTLE s. run_row() returns the
@@ -130,7 +131,11 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
             samples.append((time.monotonic(), theta, counts / scale))
 
     sampler = threading.Thread(target=sample, daemon=True)
-    master_domain, slave_domain = next_domain_id(), next_domain_id()
+    master_domain = next_domain_id()
+    # No delay and no loss to emulate: driver and slave talk directly across the veth, on one
+    # domain, so that the latencies are the network's and DDS's, not the relay's.
+    direct = round_trip_ms == 0 and loss == 0
+    slave_domain = master_domain if direct else next_domain_id()
     wall_point = HOME - WALL_BELOW * NORMAL
     on = 'true' if passivity else 'false'
     try:
@@ -140,12 +145,13 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
                 ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
                 ('passivity', on)])
             one_way = round_trip_ms / 2e3
-            start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
-                ('slave_domain_id', slave_domain), ('seed', seed),
-                ('to_slave.topics', "['pose', 'master_energy']"),
-                ('to_master.topics', "['wrench', 'slave_energy']"),
-                ('to_slave.delay', one_way), ('to_master.delay', one_way),
-                ('to_slave.loss', loss), ('to_master.loss', loss)])
+            if not direct:
+                start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
+                    ('slave_domain_id', slave_domain), ('seed', seed),
+                    ('to_slave.topics', "['pose', 'master_energy']"),
+                    ('to_master.topics', "['wrench', 'slave_energy']"),
+                    ('to_slave.delay', one_way), ('to_master.delay', one_way),
+                    ('to_slave.loss', loss), ('to_master.loss', loss)])
             start(slave_host, prefix, slave_domain, 'kraft_master_slave_sim', [
                 ('centre_at_start', 'false'), ('centre', vector(HOME)),
                 ('offset', vector(HOME)), ('box.stiffness', 0.0),
