@@ -96,6 +96,7 @@ class MasterPort(PortEnergy):
     until the next sample from the velocity estimate. With passivity on, work the prediction
     missed is paid first from `reserve`: up to MASTER_RESERVE_J of the hand's own energy in,
     kept at this port (a passive store: it only gives back what it got), never sent as credit.
+    Beyond the reserve, the port applies no wrench until credit covers the deficit.
     """
 
     def __init__(self):
@@ -135,8 +136,13 @@ class MasterPort(PortEnergy):
         self._last_ns = now_ns
         dt = self._period
         power_out = _dot(force, velocity)
-        # At most this step's own outflow: a deficit the prediction left waits for credit.
-        excess = min(self._excess(power_out, dt), power_out * dt)
+        if self.enabled and self.observed < 0.0:
+            # Outflow the prediction missed, beyond the reserve: no wrench until credit covers
+            # it (a velocity estimate that lags could otherwise keep the deficit growing).
+            self.dissipated += max(power_out * dt, 0.0)
+            self._applied = [0.0] * len(force)
+            return self._applied
+        excess = self._excess(power_out, dt)
         if excess > 0.0:
             keep = 1.0 - excess / (power_out * dt)
             force = [keep * f for f in force]
