@@ -414,7 +414,8 @@ class KraftMasterNode(Node):
         with handle:
             taken = handle.take_message(Vector3Stamped, True)
         if taken is not None:
-            self._on_slave_energy(taken[0])
+            # Its delay to when DDS received it (system clock), not to this cycle's take.
+            self._on_slave_energy(taken[0], taken[1]['received_timestamp'] or time.time_ns())
         if sources != self._wrench_sources:
             self._wrench_sources = sources
             if refused:
@@ -543,7 +544,7 @@ class KraftMasterNode(Node):
         self.get_logger().info(response.message)
         return response
 
-    def _on_slave_energy(self, data):
+    def _on_slave_energy(self, data, received_ns):
         try:
             sec, nanosec, _, energies = VECTOR3_STAMPED.decode(data)
         except ValueError as error:
@@ -551,7 +552,7 @@ class KraftMasterNode(Node):
             return
         self.master_port.credit(energies[0])
         self.slave_energy = tuple(energies)
-        self.slave_link.add(sec * 1_000_000_000 + nanosec, time.time_ns())
+        self.slave_link.add(sec * 1_000_000_000 + nanosec, received_ns)
 
     def _on_set_center(self, request, response):
         pose = self._pose()

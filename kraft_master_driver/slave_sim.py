@@ -37,6 +37,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 MODES = ('position', 'rate')
 MAX_STEP = 0.002  # s, longest integration step
 MAX_CATCH_UP = 0.1  # s of simulated time per advance(); a longer stall is skipped, not replayed
+TICK_QUEUE = 10  # messages a topic taken by the ticks holds between two ticks
 
 
 def _vector(name, values):
@@ -341,19 +342,20 @@ class SlaveSimNode(Node):
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', state_qos)
         self.pose_pub = self.create_publisher(PoseStamped, 'slave_pose', state_qos)
-        # The master's 1 kHz messages are taken raw by each tick, the newest only, as the
-        # driver takes its wrenches: the executor never wakes for them.
+        # The master's 1 kHz messages are taken raw by each tick, all that came since the last
+        # (each one's delay counts; the newest wins), as the driver takes its wrenches: the
+        # executor never wakes for them.
         self._wrench_cdr = cdr.StampedDoublesEncoder(self.base_frame, 6)
         self._pose_cdr = cdr.StampedDoublesEncoder(self.slave_frame, 7)
         msg_type, topic, on_message = (
             (PoseStamped, 'pose', self._on_pose) if self.mode == 'position'
             else (TwistStamped, 'rate_command', self._on_rate_command))
-        self._command_sub = self._newest_only(msg_type, topic, on_message)
+        self._command_sub = self._taken_by_ticks(msg_type, topic, on_message)
         # The slave port's energy in, out and dissipated (J), stamped as the wrench; the
         # master's, taken like its pose.
         self._energy_cdr = cdr.StampedDoublesEncoder(self.base_frame, 3)
         self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', state_qos)
-        self._master_energy_sub = self._newest_only(
+        self._master_energy_sub = self._taken_by_ticks(
             Vector3Stamped, 'master_energy', self._on_master_energy)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', state_qos)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -374,37 +376,40 @@ class SlaveSimNode(Node):
                 'its first pose' if centre is None
                 else '(' + ', '.join(f'{v:.4f}' for v in centre) + ') m')))
 
-    def _newest_only(self, msg_type, topic, on_message):
-        """Subscribe to `topic` for _take_newest: raw, depth 1, never run by the executor."""
+    def _taken_by_ticks(self, msg_type, topic, on_message):
+        """Subscribe to `topic` for _take_all: raw, never run by the executor."""
         return self.create_subscription(
             msg_type, topic, on_message,
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            # A few ticks' worth: a message the next overwrote would count as lost on the link.
+            QoSProfile(depth=TICK_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
             callback_group=TakenByLoopThread(),
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
 
-    def _take_newest(self, subscription):
-        """Hand the newest message (CDR bytes) of `subscription`, if one came, to its handler."""
+    def _take_all(self, subscription):
+        """Hand each message that came (CDR bytes, oldest first), with its receipt time, on."""
         with subscription.handle:
-            taken = subscription.handle.take_message(subscription.msg_type, True)
-        if taken is not None:
-            try:
-                subscription.callback(taken[0])
-            except ValueError as error:
-                self.get_logger().warning(f'{subscription.topic_name} ignored: {error}',
-                                          throttle_duration_sec=1.0)
+            while (taken := subscription.handle.take_message(
+                    subscription.msg_type, True)) is not None:
+                # When DDS received it (system clock, ns), not when this tick got to it.
+                received_ns = taken[1]['received_timestamp'] or time.time_ns()
+                try:
+                    subscription.callback(taken[0], received_ns)
+                except ValueError as error:
+                    self.get_logger().warning(f'{subscription.topic_name} ignored: {error}',
+                                              throttle_duration_sec=1.0)
 
-    def _on_master_energy(self, data):
+    def _on_master_energy(self, data, _received_ns):
         self.port.credit(VECTOR3_STAMPED.decode(data)[3][0])
 
-    def _on_pose(self, data):
+    def _on_pose(self, data, received_ns):
         sec, nanosec, _, values = POSE_STAMPED.decode(data)
-        self.pose_link.add(sec * 1_000_000_000 + nanosec, time.time_ns())
+        self.pose_link.add(sec * 1_000_000_000 + nanosec, received_ns)
         self.target = self.map.target(values[:3])
         self.orientation = values[3:]
         if self.arm.position is None:
             self.arm.reset(self.target)
 
-    def _on_rate_command(self, data):
+    def _on_rate_command(self, data, _received_ns):
         values = TWIST_STAMPED.decode(data)[3]
         self.rate = (self.map.velocity(values[:3]), np.array(values[3:]), time.monotonic())
 
@@ -432,8 +437,8 @@ class SlaveSimNode(Node):
         super().destroy_node()
 
     def _tick(self):
-        self._take_newest(self._command_sub)
-        self._take_newest(self._master_energy_sub)
+        self._take_all(self._command_sub)
+        self._take_all(self._master_energy_sub)
         now = time.monotonic()
         elapsed, self.last_tick = min(now - self.last_tick, MAX_CATCH_UP), now
         force = np.zeros(3)
