@@ -96,7 +96,7 @@ class MasterPort(PortEnergy):
     until the next sample from the velocity estimate. With passivity on, work the prediction
     missed is paid first from `reserve`: up to MASTER_RESERVE_J of the hand's own energy in,
     kept at this port (a passive store: it only gives back what it got), never sent as credit.
-    Beyond the reserve, the port applies no wrench until credit covers the deficit.
+    Beyond the reserve, the wrench fades out as the deficit grows to MASTER_RESERVE_J.
     """
 
     def __init__(self):
@@ -135,14 +135,16 @@ class MasterPort(PortEnergy):
             self._period = min((now_ns - self._last_ns) / 1e9, MAX_STEP)
         self._last_ns = now_ns
         dt = self._period
+        deficit = -self.observed if self.enabled else 0.0
+        if deficit > 0.0:
+            # Outflow the prediction missed, beyond the reserve: the wrench fades out as the
+            # deficit grows to MASTER_RESERVE_J, so that a velocity estimate that lags cannot
+            # keep it growing, and fades back in as credit covers it.
+            fade = max(0.0, 1.0 - deficit / MASTER_RESERVE_J)
+            force = [fade * f for f in force]
         power_out = _dot(force, velocity)
-        if self.enabled and self.observed < 0.0:
-            # Outflow the prediction missed, beyond the reserve: no wrench until credit covers
-            # it (a velocity estimate that lags could otherwise keep the deficit growing).
-            self.dissipated += max(power_out * dt, 0.0)
-            self._applied = [0.0] * len(force)
-            return self._applied
-        excess = self._excess(power_out, dt)
+        # At most this step's own outflow: a deficit waits for credit.
+        excess = min(self._excess(power_out, dt), power_out * dt)
         if excess > 0.0:
             keep = 1.0 - excess / (power_out * dt)
             force = [keep * f for f in force]
