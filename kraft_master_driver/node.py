@@ -188,10 +188,11 @@ class KraftMasterNode(Node):
         # Energy in, out and dissipated at each port (J), each stamped when sent.
         self.energy_pub = self.create_publisher(Vector3Stamped, 'master_energy', state_qos,
                                                 event_callbacks=quiet)
-        # The newest only, taken by the loop like the wrenches (the values are monotone).
+        # Taken by the loop like the wrenches, all that came (the values are monotone; each
+        # one's delay counts, and one the next overwrote would count as lost on the link).
         self._slave_energy_sub = self.create_subscription(
             Vector3Stamped, 'slave_energy', self._on_slave_energy,
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
             callback_group=TakenByLoopThread(),
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         self.create_service(SetBool, 'enable_force', self._on_enable_force)
@@ -412,10 +413,10 @@ class KraftMasterNode(Node):
             self.force.clear()
         handle = self._slave_energy_sub.handle
         with handle:
-            taken = handle.take_message(Vector3Stamped, True)
-        if taken is not None:
-            # Its delay to when DDS received it (system clock), not to this cycle's take.
-            self._on_slave_energy(taken[0], taken[1]['received_timestamp'] or time.time_ns())
+            while (taken := handle.take_message(Vector3Stamped, True)) is not None:
+                # Its delay to when DDS received it (system clock), not to this cycle's take.
+                self._on_slave_energy(taken[0],
+                                      taken[1]['received_timestamp'] or time.time_ns())
         if sources != self._wrench_sources:
             self._wrench_sources = sources
             if refused:
