@@ -233,6 +233,8 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
     processes = [simulator]
     screen = Screen(out)
     previous_sigterm = signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    # Ctrl-C stops the demo even where it came ignored (a shell's background job ignores it).
+    previous_sigint = signal.signal(signal.SIGINT, signal.default_int_handler)
     readout = None
     try:
         port = simulator.stdout.readline().partition('port: ')[2].strip()
@@ -259,7 +261,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
         return 0
     finally:
         # Another Ctrl-C or SIGTERM must not cut the stopping short.
-        previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if readout is not None:
             readout.close()
