@@ -288,11 +288,12 @@ def test_node_follows_the_pose_stops_at_the_wall_and_reflects_the_force(start_sl
     master.publish_until(master.publish_pose, target, lambda: (
         master.slave_position() is not None and
         np.linalg.norm(master.slave_position()[:2] - [0.02, 0.04]) < 1e-4))
-    # Pressing with all it has (mass * max_acceleration = 5 N), reflected times the scale.
-    master.publish_until(master.publish_pose, target, lambda: abs(
-        master.wrenches[-1].wrench.force.z - 2.0 * 5.0) < 1e-3)
-    depth = -0.04 - master.slave_position()[2]
-    assert depth == pytest.approx(5.0 / 20000.0, rel=0.01)
+    # Pressing with all it has (mass * max_acceleration = 5 N), reflected times the scale, and at
+    # rest where the wall's spring alone holds it (moving in, the wall's damping adds force).
+    pressed = 5.0 / 20000.0
+    master.publish_until(master.publish_pose, target, lambda: (
+        abs(master.wrenches[-1].wrench.force.z - 2.0 * 5.0) < 1e-3
+        and abs(-0.04 - master.slave_position()[2] - pressed) < 0.01 * pressed))
     orientation = master.slave_poses[-1].pose.orientation
     assert (orientation.z, orientation.w) == pytest.approx((math.sqrt(0.5),) * 2)
 
