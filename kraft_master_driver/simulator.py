@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-A simulated Kraft Master hand controller on a real pseudo-terminal.
+A simulated Kraft Master hand controller on a real pseudo-terminal, or on TCP.
 
 The device answers each torque command with one pot reply in the link's frame format
 (protocol.py). Behind the link:
@@ -23,6 +23,10 @@ The device answers each torque command with one pot reply in the link's frame fo
   electronics with a watchdog would.
 - Fault switches for tests: dropped replies, corrupted bytes, stalls, unplug and replug of the
   pty (behind a stable symlink), garbage bytes; optional wire timing for a baud rate.
+- Transport 'tcp' in place of the pty: a TCP server on 127.0.0.1, reached as socket://, the way
+  a serial device server carries a serial line over a network. A pty passes every byte through
+  a kernel worker thread, which a busy machine can leave waiting for seconds; loopback TCP has
+  none.
 """
 import argparse
 import collections
@@ -35,6 +39,7 @@ import random
 import select
 import shutil
 import signal
+import socket
 import sys
 import tempfile
 import threading
@@ -52,6 +57,7 @@ import numpy as np
 
 OPERATORS = ('hold', 'sweep', 'random_walk', 'push')
 COUPLINGS = ('actuator', 'joint')
+TRANSPORTS = ('pty', 'tcp')
 JOINT_COUNT = 6
 MAX_SUBSTEP = 0.5e-3  # s
 MAX_CATCH_UP = 0.05  # s of model time per step; a longer idle gap is skipped, not replayed
@@ -322,14 +328,14 @@ def _axis_values(values, name, valid, requirement):
 
 
 class SimulatedKraftMaster:
-    """A simulated Kraft Master on a pseudo-terminal; start() returns the port path."""
+    """A simulated Kraft Master on a pseudo-terminal or TCP; start() returns the port."""
 
     def __init__(self, arm='right', calibration=None, codec='kraft-default',
                  torque_scale=DEFAULT_TORQUE_SCALE, coupling='actuator', operator='hold',
                  pot_noise_counts=0.0, baudrate=None, seed=0, *,
                  torque_limit=DEFAULT_TORQUE_LIMIT, command_timeout=0.1,
                  operator_period=2.0, drop_reply_rate=0.0, corrupt_byte_rate=0.0,
-                 dynamics=DEFAULT_DYNAMICS, record=10000, priority=0):
+                 dynamics=DEFAULT_DYNAMICS, record=10000, priority=0, transport='pty'):
         """
         Configure the device; nothing runs until start().
 
@@ -340,8 +346,14 @@ class SimulatedKraftMaster:
         segment of the random walk; `record` is the length of the `received` deque;
         priority (1-99) runs the serving thread SCHED_FIFO, answering as promptly as the
         device's own electronics would (0: the normal scheduler; if the OS refuses,
-        priority_error says why and the thread runs normally).
+        priority_error says why and the thread runs normally). transport 'pty': the port is
+        a pseudo-terminal behind a symlink; 'tcp': a TCP server on 127.0.0.1 that serves one
+        host at a time, its port a pyserial URL socket://127.0.0.1:N.
         """
+        if transport not in TRANSPORTS:
+            raise ValueError(f'transport must be one of {", ".join(TRANSPORTS)}, '
+                             f'got {transport!r}')
+        self.transport = transport
         if not (isinstance(priority, int) and 0 <= priority <= 99):
             raise ValueError(f'priority must be an integer in 0..99, got {priority!r}')
         self.priority = priority
@@ -391,8 +403,10 @@ class SimulatedKraftMaster:
              'timeouts', 'garbage_sent', 'unsent'), 0)
         self._directory = None
         self._link = None
-        self._master = None
+        self._master = None  # the host's end: the pty master or the accepted connection
         self._slave = None
+        self._listener = None
+        self._tcp_port = 0
         self._wake = None
         self._requests = queue.SimpleQueue()
         self._thread = None
@@ -441,12 +455,12 @@ class SimulatedKraftMaster:
         self._stall_until = time.monotonic() + ms / 1000.0
 
     def unplug(self):
-        """Close the pty master (the slave side sees a hangup) and remove the port symlink."""
-        self._call_in_loop(self._close_pty)
+        """Close the pty master and remove the port symlink (tcp: close the server)."""
+        self._call_in_loop(self._close_port)
 
     def replug(self):
-        """Open a new pty and point the port symlink at its slave (unplugs first if needed)."""
-        self._call_in_loop(self._open_pty)
+        """Open a new pty behind the port symlink (tcp: serve the same port again)."""
+        self._call_in_loop(self._open_port)
 
     def send_garbage(self, n_bytes):
         """Write `n_bytes` random bytes to the host, between replies."""
@@ -458,7 +472,7 @@ class SimulatedKraftMaster:
 
     @property
     def port(self):
-        """Return the stable port path (a symlink to the current pty slave), None if stopped."""
+        """Return the stable port to open, a symlink to the pty slave or a URL; None if stopped."""
         return self._link
 
     @property
@@ -474,14 +488,17 @@ class SimulatedKraftMaster:
     # Life cycle.
 
     def start(self):
-        """Create the pty and its symlink, start serving; return the port path."""
+        """Open the port (pty and symlink, or TCP server), start serving; return the port."""
         if self._running:
             return self._link
-        self._directory = tempfile.mkdtemp(prefix='kraft_master_sim_')
-        self._link = os.path.join(self._directory, 'tty')
+        if self.transport == 'pty':
+            self._directory = tempfile.mkdtemp(prefix='kraft_master_sim_')
+            self._link = os.path.join(self._directory, 'tty')
         self._wake = os.pipe()
         os.set_blocking(self._wake[0], False)
-        self._open_pty()
+        self._open_port()
+        if self.transport == 'tcp':
+            self._link = f'socket://127.0.0.1:{self._tcp_port}'
         self._start_time = self._model_time = self._last_command = time.monotonic()
         self._waits_for_host = isinstance(self._operator, PushOperator)
         self._running = True
@@ -503,14 +520,15 @@ class SimulatedKraftMaster:
             os.write(self._wake[1], b'x')
             self._thread.join()
             self._thread = None
-        self._close_pty()
+        self._close_port()
         if self._wake is not None:
             for fd in self._wake:
                 os.close(fd)
             self._wake = None
         if self._directory is not None:
             shutil.rmtree(self._directory, ignore_errors=True)
-            self._directory = self._link = None
+            self._directory = None
+        self._link = None
 
     def __enter__(self):
         """Start serving and return the simulator."""
@@ -538,15 +556,17 @@ class SimulatedKraftMaster:
                     self._send_due(time.monotonic())
                     continue
                 timeout = min(timeout, due_in - WIRE_WAKE_EARLY)
-            master = self._master
-            readable = select.select((wake, master) if master is not None else (wake,),
-                                     (), (), timeout)[0]
+            master, listener = self._master, self._listener
+            waits = [fd for fd in (wake, master, listener) if fd is not None]
+            readable = select.select(waits, (), (), timeout)[0]
             now = time.monotonic()
             if self._pending:
                 self._send_due(now)
             self._advance(now)
             if master is not None and master in readable:
                 self._receive(now)
+            if listener is not None and listener in readable:
+                self._accept()
             if wake in readable:
                 self._run_requests()
 
@@ -569,6 +589,10 @@ class SimulatedKraftMaster:
         try:
             data = os.read(self._master, READ_SIZE)
         except OSError:
+            data = None  # pty: no host has the slave open
+        if not data:
+            if self.transport == 'tcp':
+                self._drop_host()  # the host closed or reset its connection
             return
         for command in self._decoder.feed(data):
             self._handle(command, now)
@@ -698,6 +722,57 @@ class SimulatedKraftMaster:
         while not self._requests.empty():
             self._requests.get()()
 
+    def _open_port(self):
+        if self.transport == 'tcp':
+            self._open_listener()
+        else:
+            self._open_pty()
+
+    def _close_port(self):
+        if self.transport == 'tcp':
+            self._close_listener()
+        else:
+            self._close_pty()
+
+    def _open_listener(self):
+        """Serve TCP on 127.0.0.1, on the port served before if any (unplugs first)."""
+        self._close_listener()
+        listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(('127.0.0.1', self._tcp_port))
+        listener.listen(1)
+        listener.setblocking(False)
+        self._tcp_port = listener.getsockname()[1]
+        self._listener = listener
+
+    def _accept(self):
+        """Take a host that connects; refuse a second one while the first is served."""
+        try:
+            connection, _address = self._listener.accept()
+        except OSError:
+            return
+        if self._master is not None:
+            connection.close()
+            return
+        connection.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        connection.setblocking(False)
+        self._master = connection.detach()
+
+    def _drop_host(self):
+        """Close the connection to the host; drop what was in flight."""
+        if self._master is not None:
+            os.close(self._master)
+            self._master = None
+        self._pending.clear()
+        self._decoder.reset()
+
+    def _close_listener(self):
+        """Stop serving TCP (a connected host sees the connection closed)."""
+        self._drop_host()
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+
     def _open_pty(self):
         """Open a new pty in raw mode and point the port symlink at its slave."""
         self._close_pty()
@@ -735,8 +810,8 @@ def main(argv=None):
     """Run the simulator from the command line until Ctrl-C or SIGTERM; return 0."""
     parser = argparse.ArgumentParser(
         prog='kraft_master_sim',
-        description='Simulated Kraft Master hand controller on a pseudo-terminal. Prints the '
-                    'port path for the driver, then serves until Ctrl-C or SIGTERM.')
+        description='Simulated Kraft Master hand controller on a pseudo-terminal (or TCP). '
+                    'Prints the port for the driver, then serves until Ctrl-C or SIGTERM.')
     parser.add_argument('--arm', choices=kinematics.ARMS,
                         help="arm (default: the calibration's, else right)")
     parser.add_argument('--operator', choices=OPERATORS, default='hold',
@@ -758,6 +833,9 @@ def main(argv=None):
     parser.add_argument('--priority', type=int, default=0,
                         help='SCHED_FIFO priority 1-99 of the thread that answers commands, '
                              'as prompt as the real electronics (default 0: normal)')
+    parser.add_argument('--tcp', action='store_true',
+                        help='serve on TCP, 127.0.0.1, instead of a pty: the port is a '
+                             'socket:// URL, as of a serial device server')
     parser.add_argument('--record', metavar='NPY',
                         help='on exit, save every received command as rows (time_ns, '
                              'counts axis 1..5, sequence) in this .npy file')
@@ -775,7 +853,8 @@ def main(argv=None):
             arm=arm, calibration=calibration, coupling=args.coupling, operator=args.operator,
             pot_noise_counts=args.noise, baudrate=args.baud, seed=args.seed,
             drop_reply_rate=args.drop_rate, corrupt_byte_rate=args.corrupt_rate,
-            record=RECORD_ALL if args.record else 10000, priority=args.priority)
+            record=RECORD_ALL if args.record else 10000, priority=args.priority,
+            transport='tcp' if args.tcp else 'pty')
     except ValueError as error:
         parser.error(str(error))
 

@@ -12,6 +12,7 @@ import time
 
 from kraft_master_driver import kinematics
 from kraft_master_driver.calibration import ArmCalibration, POT_MAX
+from kraft_master_driver.device import KmcDevice
 from kraft_master_driver.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
@@ -52,7 +53,7 @@ class Host:
 
     def __init__(self, path):
         """Open the port like a driver would."""
-        self.port = serial.Serial(path, baudrate=1_000_000, timeout=0.02)
+        self.port = serial.serial_for_url(path, baudrate=1_000_000, timeout=0.02)
         self.decoder = CODEC.reply_decoder()
         self.frames = []
         self.bytes_received = 0
@@ -122,8 +123,9 @@ def expected_pots(calibration, theta):
     return tuple(int(x) for x in np.clip(np.rint(calibration.joints_to_pots(theta)), 0, POT_MAX))
 
 
-def test_every_command_gets_one_reply_with_its_sequence(rig):
-    simulator, host = rig()
+@pytest.mark.parametrize('transport', ['pty', 'tcp'])
+def test_every_command_gets_one_reply_with_its_sequence(rig, transport):
+    simulator, host = rig(transport=transport)
     for count in range(1, 601):
         frame = host.exchange()
         assert frame is not None
@@ -365,6 +367,43 @@ def test_unplug_fails_the_host_and_replug_serves_the_same_path(rig):
         again.close()
 
 
+def test_tcp_unplug_closes_the_connection_and_replug_serves_the_same_url(rig):
+    simulator, host = rig(transport='tcp')
+    url = simulator.port
+    assert url.startswith('socket://127.0.0.1:')
+    assert host.exchange() is not None
+    simulator.unplug()
+    with pytest.raises(serial.SerialException):
+        host.exchange(timeout=1.0)
+    with pytest.raises(serial.SerialException):
+        Host(url)  # nothing listens
+    simulator.replug()
+    assert simulator.port == url
+    again = Host(url)
+    try:
+        assert again.exchange() is not None
+    finally:
+        again.close()
+
+
+def test_tcp_serves_one_host_at_a_time(rig):
+    simulator, host = rig(transport='tcp')
+    assert host.exchange() is not None
+    second = Host(simulator.port)
+    try:
+        with pytest.raises(serial.SerialException):  # the connection is closed at once
+            second.exchange(timeout=1.0)
+    finally:
+        second.close()
+    assert host.exchange() is not None
+    host.close()
+    third = Host(simulator.port)
+    try:
+        wait_for(lambda: third.exchange(timeout=0.2) is not None)
+    finally:
+        third.close()
+
+
 def test_garbage_is_skipped_by_the_host_decoder(rig):
     simulator, host = rig()
     assert host.exchange() is not None
@@ -421,6 +460,7 @@ def test_stop_cleans_up():
     ({'command_timeout': 0.0}, 'command_timeout'),
     ({'priority': 100}, 'priority'),
     ({'priority': 1.5}, 'priority'),
+    ({'transport': 'usb'}, 'transport'),
 ])
 def test_bad_options_are_refused_by_name(options, message):
     with pytest.raises(ValueError, match=message):
@@ -461,6 +501,23 @@ def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
         process.send_signal(signum)
         assert process.wait(timeout=20) == 0
         assert not os.path.exists(os.path.dirname(path))
+    finally:
+        process.kill()
+        process.wait()
+        process.stdout.close()
+        process.stderr.close()
+
+
+def test_cli_serves_tcp_to_the_driver_device_code():
+    process = start_cli('--tcp')
+    try:
+        url = read_port_line(process)
+        assert url.startswith('socket://127.0.0.1:')
+        with KmcDevice(url) as device:
+            results = [device.cycle([0.0] * 5) for _ in range(100)]
+        assert all(result is not None for result in results)
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 0
     finally:
         process.kill()
         process.wait()
