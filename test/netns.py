@@ -10,7 +10,8 @@ Two hosts on one machine: two network namespaces joined by a veth pair.
 Each Host has `name` (its namespace), `address` (its end of the veth), `peer` (the other
 end's address), `ros_env(domain_id)` (the environment a user sets on two real machines:
 ROS_DOMAIN_ID shared, ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET, ROS_STATIC_PEERS=<peer>), and
-`popen`/`run` (subprocess calls run inside the namespace through `ip netns exec`). The
+`popen`/`run` (subprocess calls run inside the namespace through `ip netns exec`), and
+`entered()` (the calling thread inside the namespace: a socket it opens stays there). The
 namespaces have only loopback and the veth (with the multicast route a machine's default route
 gives), so nothing reaches an address outside them.
 
@@ -24,6 +25,8 @@ left by dead runs (found by name, `kmdh<pid>...`) are deleted when a new run sta
 TwoHosts raises NamespacesRefused with the reason where the machine does not allow them.
 """
 import atexit
+import contextlib
+import ctypes
 import itertools
 import os
 import re
@@ -34,6 +37,7 @@ import time
 SUBNET = '10.231.7.'  # /24 on the veth; only the two namespaces see it
 NAME_PREFIX = 'kmdh'
 NAME_PATTERN = re.compile(rf'^{NAME_PREFIX}(\d+)x\d+[ab]$')
+CLONE_NEWNET = 0x40000000
 _runs = itertools.count()
 _live = {}  # namespace name -> Host, for the exit and signal handlers
 
@@ -47,6 +51,14 @@ def _ip(*args, check=True):
     if check and result.returncode != 0:
         raise RuntimeError(f'ip {" ".join(args)}: {result.stderr.strip()}')
     return result
+
+
+def _setns(fd):
+    """Move the calling thread into the network namespace open as `fd` (os.setns of 3.12)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.setns(fd, CLONE_NEWNET) != 0:
+        error = ctypes.get_errno()
+        raise OSError(error, f'setns: {os.strerror(error)}')
 
 
 def _pid_alive(pid):
@@ -147,6 +159,23 @@ class Host:
     def run(self, args, **kwargs):
         """Run `args` inside this namespace to the end (subprocess.run keywords)."""
         return subprocess.run(self.command(args), **kwargs)
+
+    @contextlib.contextmanager
+    def entered(self):
+        """Run the calling thread inside this namespace for the `with` block, then return."""
+        own = os.open('/proc/thread-self/ns/net', os.O_RDONLY)
+        try:
+            target = os.open(f'/var/run/netns/{self.name}', os.O_RDONLY)
+            try:
+                _setns(target)
+            finally:
+                os.close(target)
+            try:
+                yield self
+            finally:
+                _setns(own)
+        finally:
+            os.close(own)
 
     def link_counters(self):
         """Return (rx_bytes, tx_bytes) of this end of the veth."""

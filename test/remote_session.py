@@ -5,9 +5,11 @@ Teleoperation across a delaying, lossy link, one push into the stiff wall (tests
 
 Two hosts (netns.TwoHosts: two network namespaces joined by a veth pair): on the master host
 the installed driver at 1 kHz on one DDS domain, driving the simulated hand controller that runs
-in this process ('hold' operator) over its pseudo-terminal, and kraft_master_link_emulator
-relaying to the slave's domain with half the round trip each way and the given loss (with
-neither delay nor loss, no emulator: driver and slave share a domain); on the
+in this process ('hold' operator) over TCP inside the master host (not a pty: with a busy loop
+per core, the pty's kernel worker thread held the driver's poll() for up to 5 s in about a
+third of the sessions), and kraft_master_link_emulator relaying to the slave's domain with half
+the round trip each way and the given loss (with neither delay nor loss, no emulator: driver
+and slave share a domain); on the
 slave host the installed slave simulator. A recorder on each host (remote_recorder.py). The
 operator's hand pulls the master PAST m through the slave's wall (the slave follows one to one)
 over RAMP s, holds HOLD s, goes back over RAMP s and rests SETTLE s. run_row() returns the
@@ -118,8 +120,7 @@ class Recorder:
 
 def run_row(prefix, round_trip_ms, loss, passivity, seed):
     """Run one session on two hosts; return its figures (NamespacesRefused if not allowed)."""
-    simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000)
-    port = simulator.start()
+    simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000, transport='tcp')
     samples = []
     sampling = threading.Event()
 
@@ -140,6 +141,8 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
     on = 'true' if passivity else 'false'
     try:
         with TwoHosts() as (master_host, slave_host):
+            with master_host.entered():
+                port = simulator.start()
             start(master_host, prefix, master_domain, 'kraft_master_node', [
                 ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
                 ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
