@@ -6,8 +6,8 @@ Force reflection across a delaying, lossy link: holding contact with the stiff w
 
 One row per round trip, loss and passivity setting, each a fresh session of
 test/remote_session.py (two hosts as network namespaces joined by a veth pair; the driver and
-the link emulator on one, the slave on the other, the simulated device in this process): the
-operator pushes the master through the slave's wall, holds, releases.
+the link emulator on one, the slave on the other, the simulated device in this process on
+TCP): the operator pushes the master through the slave's wall, holds, releases.
 Figures, no asserts: a table and JSON (--json).
 """
 import argparse
