@@ -59,7 +59,7 @@ $(PACKAGE_STAMP): setup.py setup.cfg | $(VPY)
 	@touch $@
 
 demo: $(RUNTIME)
-	$(VPY) -m kraft_master_driver.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
+	$(VPY) -m kraft_master_driver.tools.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
 		--passivity $(PASSIVITY)
 
 test: $(DEVELOPMENT)

@@ -25,13 +25,13 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO)]
 
-from kraft_master_driver import kinematics  # noqa: E402, I100
-from kraft_master_driver.monitoring import VelocityFilter  # noqa: E402
-from kraft_master_driver.passivity import MasterPort, SlavePort  # noqa: E402
-from kraft_master_driver.simulator import (  # noqa: E402
+from kraft_master_driver.core import kinematics  # noqa: E402, I100
+from kraft_master_driver.core.force_reflection import ForceReflection  # noqa: E402
+from kraft_master_driver.core.loop_statistics import VelocityFilter  # noqa: E402
+from kraft_master_driver.core.passivity import MasterPort, SlavePort  # noqa: E402
+from kraft_master_driver.nodes.slave_sim import SlaveArm, SlaveLimits, Wall  # noqa: E402
+from kraft_master_driver.simulation.simulator import (  # noqa: E402
     DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
-from kraft_master_driver.slave_sim import SlaveArm, SlaveLimits, Wall  # noqa: E402
-from kraft_master_driver.teleop import ForceReflection  # noqa: E402
 
 ARM = 'right'
 LENGTHS = kinematics.LinkLengths(*kinematics.NOMINAL_LENGTHS)

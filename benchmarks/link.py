@@ -3,7 +3,7 @@
 """
 Time KmcDevice cycles against the simulated hand controller in another process, over a pty.
 
-Two runs, the simulator started each time as `python -m kraft_master_driver.simulator`:
+Two runs, the simulator started each time as `python -m kraft_master_driver.simulation.simulator`:
 - flat out, no wire timing (the software floor of pyserial over a pseudo-terminal): cycles/s
   and the round-trip time distribution (median, p99, max);
 - with the simulator delaying each reply by its wire time at 115200 baud: the achieved rate as
@@ -30,8 +30,8 @@ import tty
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from kraft_master_driver.device import KmcDevice  # noqa: E402, I100
-from kraft_master_driver.protocol import get_codec  # noqa: E402, I100
+from kraft_master_driver.link.device import KmcDevice  # noqa: E402, I100
+from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
 from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
 RATE_TARGET = 2000.0  # cycles/s flat out
@@ -58,7 +58,7 @@ class SimulatorProcess:
             self._arguments = [sys.executable, __file__, '--bare-far-end', '--baud',
                                str(baud or 0), '--sim-priority', str(priority)]
         else:
-            self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulator',
+            self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
                                '--priority', str(priority)]
             if baud is not None:
                 self._arguments += ['--baud', str(baud)]

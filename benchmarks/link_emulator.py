@@ -96,7 +96,7 @@ def run_row(name, seconds, base_domain, delay=None):
     emulator = None
     if delay is not None:
         emulator = python_process(
-            ['-m', 'kraft_master_driver.link_emulator', '--ros-args',
+            ['-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
              '-p', f'slave_domain_id:={slave}', '-p', f'to_slave.delay:={delay}',
              '-p', "to_slave.topics:=['pose:pose:geometry_msgs/msg/PoseStamped']"], master)
     source = python_process([__file__, '--source', str(seconds)], master)

@@ -41,7 +41,7 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from kraft_master_driver.protocol import get_codec  # noqa: E402, I100
+from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
 from machine import bare_loop, cpu_times, steal_fraction  # noqa: E402, I100
 
 DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
@@ -155,8 +155,8 @@ def process_cpu_seconds(pid):
 
 
 def start_simulator(env, record, baud, priority):
-    command = [sys.executable, '-m', 'kraft_master_driver.simulator', '--record', record,
-               '--priority', str(priority)]
+    command = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+               '--record', record, '--priority', str(priority)]
     if baud:
         command += ['--baud', str(baud)]
     sim = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, text=True)
@@ -218,7 +218,8 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         node_args += ['-p', f'baud:={baud}']
     for parameter in driver_parameters:
         node_args += ['-p', parameter]
-    driver = subprocess.Popen([sys.executable, '-m', 'kraft_master_driver.node', *node_args],
+    driver = subprocess.Popen([sys.executable, '-m', 'kraft_master_driver.nodes.driver',
+                               *node_args],
                               env=env, stdout=subprocess.DEVNULL)
     subscriber_out = str(workdir / f'subscriber_{tag}')
     publisher_out = str(workdir / f'publisher_{tag}.npy')

@@ -23,8 +23,9 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from kraft_master_driver import report, session  # noqa: E402, I100
-from kraft_master_driver.calibration import ArmCalibration  # noqa: E402
+from kraft_master_driver.bag import session  # noqa: E402
+from kraft_master_driver.core.calibration import ArmCalibration  # noqa: E402
+from kraft_master_driver.tools import report  # noqa: E402
 from rosbags.rosbag2 import Reader  # noqa: E402
 
 TARGET_S = 30.0

@@ -15,9 +15,9 @@ as kraft_master.launch.py does; its checks run before any process starts.
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from kraft_master_driver.kinematics import ARMS
-from kraft_master_driver.simulator import OPERATORS
-from kraft_master_driver.urdf_model import driver_names
+from kraft_master_driver.core.kinematics import ARMS
+from kraft_master_driver.simulation.simulator import OPERATORS
+from kraft_master_driver.tools.urdf_model import driver_names
 from launch import LaunchDescription
 from launch.actions import (
     DeclareLaunchArgument, ExecuteProcess, IncludeLaunchDescription, OpaqueFunction, TimerAction)

@@ -30,9 +30,10 @@ import threading
 import time
 
 from driver_harness import executable, installed_env, next_domain_id
-from kraft_master_driver import kinematics
-from kraft_master_driver.protocol import DEFAULT_TORQUE_SCALE
-from kraft_master_driver.simulator import joints_to_actuators, SimulatedKraftMaster, Workspace
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
+from kraft_master_driver.simulation.simulator import (
+    joints_to_actuators, SimulatedKraftMaster, Workspace)
 from netns import TwoHosts
 import numpy as np
 

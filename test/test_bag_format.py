@@ -7,7 +7,7 @@ from pathlib import Path
 import sqlite3
 import sys
 
-from kraft_master_driver import session
+from kraft_master_driver.bag import session
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory

@@ -6,11 +6,12 @@ import pathlib
 import threading
 import time
 
-from kraft_master_driver import calibrate, kinematics
-from kraft_master_driver.calibration import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import (
     ArmCalibration, CalibrationError, read_parameter_file)
-from kraft_master_driver.device import KmcDevice
-from kraft_master_driver.simulator import SimulatedKraftMaster
+from kraft_master_driver.link.device import KmcDevice
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.tools import calibrate
 import numpy as np
 import pytest
 

@@ -4,9 +4,9 @@
 import math
 from pathlib import Path
 
-from kraft_master_driver import calibration
-from kraft_master_driver.calibration import ArmCalibration, CalibrationError
-from kraft_master_driver.kinematics import NOMINAL_LENGTHS
+from kraft_master_driver.core import calibration
+from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.core.kinematics import NOMINAL_LENGTHS
 import numpy as np
 import pytest
 

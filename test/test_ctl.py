@@ -10,7 +10,7 @@ import sys
 
 from driver_harness import DriverProcess, next_domain_id, REPO, RosClient
 from geometry_msgs.msg import TwistStamped
-from kraft_master_driver.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import pytest
 
 pytestmark = pytest.mark.integration

@@ -17,9 +17,9 @@ import threading
 
 from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver import kinematics
-from kraft_master_driver.node import PARAMETERS as DRIVER_PARAMETERS
-from kraft_master_driver.slave_sim import PARAMETERS as SLAVE_PARAMETERS
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.nodes.driver import PARAMETERS as DRIVER_PARAMETERS
+from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS
 import numpy as np
 import pytest
 import rclpy
@@ -101,7 +101,8 @@ class Demo:
         # PYTHONFAULTHANDLER: a demo that hangs shows its threads' stacks on SIGABRT.
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONFAULTHANDLER='1')
-        command = [sys.executable, '-m', 'kraft_master_driver.demo', '--duration', str(duration)]
+        command = [sys.executable, '-m', 'kraft_master_driver.tools.demo',
+                   '--duration', str(duration)]
         if sigint_ignored:
             command = ['sh', '-c', 'trap "" INT; exec "$@"', 'sh', *command]
         self.process = subprocess.Popen(

@@ -3,8 +3,8 @@
 """Closed-form kinematics against the paper, the DH chain, finite differences and virtual work."""
 import math
 
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import ArmCalibration
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
 import numpy as np
 import pytest
 

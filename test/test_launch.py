@@ -8,8 +8,8 @@ import shlex
 
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 from driver_harness import PACKAGE, REPO
-from kraft_master_driver.simulator import OPERATORS
-from kraft_master_driver.urdf_model import driver_names
+from kraft_master_driver.simulation.simulator import OPERATORS
+from kraft_master_driver.tools.urdf_model import driver_names
 import pytest
 
 NOT_HERE = ('launch_ros cannot be installed on this machine: it is not on PyPI (it comes with '

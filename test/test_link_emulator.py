@@ -12,8 +12,8 @@ import time
 from driver_harness import DriverProcess, executable as executable_path, installed_env
 from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver.delay_line import DelayLine, LinkModel
-from kraft_master_driver.link_emulator import PARAMETERS, parse_relay
+from kraft_master_driver.core.delay_line import DelayLine, LinkModel
+from kraft_master_driver.nodes.link_emulator import PARAMETERS, parse_relay
 import numpy as np
 import pytest
 import rclpy

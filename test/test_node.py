@@ -16,10 +16,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import (
     DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for)
 from geometry_msgs.msg import WrenchStamped
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import ArmCalibration
-from kraft_master_driver.protocol import DEFAULT_TORQUE_SCALE
-from kraft_master_driver.simulator import SimulatedKraftMaster
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 from rcl_interfaces.msg import ParameterType

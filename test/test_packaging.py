@@ -132,7 +132,7 @@ def import_groups(path, first_party=()):
 
 def package_modules():
     """Return the package's modules and launch files: what is installed and run."""
-    return sorted((REPO / PACKAGE).glob('*.py')) + sorted((REPO / 'launch').glob('*.py'))
+    return sorted((REPO / PACKAGE).rglob('*.py')) + sorted((REPO / 'launch').glob('*.py'))
 
 
 def exec_depends():
@@ -207,7 +207,7 @@ def test_every_import_of_the_package_is_declared_in_package_xml():
 def test_every_import_of_the_package_is_brought_by_requirements_txt():
     closure = requirements_closure(REPO / 'requirements.txt')
     missing = {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
-               for path in sorted((REPO / PACKAGE).glob('*.py'))
+               for path in sorted((REPO / PACKAGE).rglob('*.py'))
                for group in import_groups(path)
                if not any(provided_by(closure, module) for module in group)}
     assert not missing, 'imports requirements.txt does not install:\n' + '\n'.join(
@@ -228,7 +228,7 @@ def test_every_import_but_ros_is_in_setup_py_install_requires():
     closure = requirements_closure(lines=install_requires())
     ros_closure = requirements_closure(lines=ros)
     missing = {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
-               for path in sorted((REPO / PACKAGE).glob('*.py'))
+               for path in sorted((REPO / PACKAGE).rglob('*.py'))
                for group in import_groups(path)
                if not any(provided_by(closure, module) or provided_by(ros_closure, module)
                           for module in group)}
@@ -250,7 +250,8 @@ def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
 
 # -- the Makefile's set-up ------------------------------------------------------------------
 
-SETUP_FILES = ('Makefile', 'requirements.txt', 'requirements-dev.txt', 'setup.py', 'setup.cfg')
+SETUP_FILES = ('Makefile', 'requirements.txt', 'requirements-dev.txt', 'constraints.txt',
+               'setup.py', 'setup.cfg')
 STAGES = {'venv': 'creating .venv', 'run': 'requirements.txt', 'dev': 'requirements-dev.txt',
           'package': '--editable .'}
 
@@ -294,6 +295,7 @@ def test_the_first_make_demo_installs_what_running_needs_only(checkout):
 @pytest.mark.parametrize('changed, target, stages', [
     (None, 'demo', set()), (None, 'test', set()),
     ('requirements.txt', 'demo', {'run'}), ('requirements.txt', 'test', {'run', 'dev'}),
+    ('constraints.txt', 'demo', {'run'}), ('constraints.txt', 'test', {'run', 'dev'}),
     ('requirements-dev.txt', 'demo', set()), ('requirements-dev.txt', 'test', {'dev'}),
     ('setup.py', 'demo', {'package'}), ('setup.cfg', 'test', {'package'})])
 def test_later_runs_install_only_what_a_changed_file_asks_for(

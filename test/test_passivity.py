@@ -5,8 +5,8 @@ import collections
 import math
 import random
 
-from kraft_master_driver.passivity import LinkMonitor, MASTER_RESERVE_J, MasterPort, SlavePort
-from kraft_master_driver.teleop import ForceReflection
+from kraft_master_driver.core.force_reflection import ForceReflection
+from kraft_master_driver.core.passivity import LinkMonitor, MASTER_RESERVE_J, MasterPort, SlavePort
 import numpy as np
 import pytest
 

@@ -5,7 +5,7 @@ import itertools
 import struct
 
 from hypothesis import given, HealthCheck, settings, strategies as st
-from kraft_master_driver.protocol import (
+from kraft_master_driver.link.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS, get_codec, KraftDefaultCodec,
     PotFrame, TorqueCommand)
 import pytest

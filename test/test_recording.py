@@ -13,9 +13,11 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver import kinematics, record, report, session
-from kraft_master_driver.calibration import ArmCalibration
-from kraft_master_driver.simulator import SimulatedKraftMaster
+from kraft_master_driver.bag import session
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.tools import record, report
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np

@@ -4,8 +4,10 @@
 import csv
 import math
 
-from kraft_master_driver import kinematics, report, session
-from kraft_master_driver.calibration import ArmCalibration
+from kraft_master_driver.bag import session
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.tools import report
 from matplotlib.image import imread
 import numpy as np
 import pytest

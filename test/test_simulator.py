@@ -10,13 +10,13 @@ import subprocess
 import sys
 import time
 
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import ArmCalibration, POT_MAX
-from kraft_master_driver.device import KmcDevice
-from kraft_master_driver.protocol import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
+from kraft_master_driver.link.device import KmcDevice
+from kraft_master_driver.link.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
-from kraft_master_driver.simulator import (
+from kraft_master_driver.simulation.simulator import (
     actuators_to_joints, joints_to_actuators, PushOperator, SimulatedKraftMaster, Workspace)
 import numpy as np
 import pytest
@@ -471,7 +471,7 @@ def start_cli(*arguments):
     """Start the simulator CLI as a subprocess of this Python; return it."""
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1')
     return subprocess.Popen(
-        [sys.executable, '-m', 'kraft_master_driver.simulator', *arguments],
+        [sys.executable, '-m', 'kraft_master_driver.simulation.simulator', *arguments],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
 
 
@@ -559,7 +559,7 @@ def test_priority_runs_the_serving_thread_sched_fifo():
 def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
     process = subprocess.Popen(
         ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice',
-         sys.executable, '-m', 'kraft_master_driver.simulator', '--priority', '20'],
+         sys.executable, '-m', 'kraft_master_driver.simulation.simulator', '--priority', '20'],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
         env=dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1'))
     try:
@@ -580,7 +580,8 @@ def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
 
 def test_cli_refuses_an_unreadable_calibration():
     result = subprocess.run(
-        [sys.executable, '-m', 'kraft_master_driver.simulator', '--calibration', '/no/such.yaml'],
+        [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+         '--calibration', '/no/such.yaml'],
         capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(REPO)))
     assert result.returncode == 2
     assert '/no/such.yaml: cannot read' in result.stderr

@@ -1,12 +1,12 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""Tests of the force reflection and rate command logic (kraft_master_driver.teleop)."""
+"""Tests of the force reflection and rate command logic (core.force_reflection)."""
 import math
 import threading
 
 from hypothesis import given, settings, strategies as st
-from kraft_master_driver import kinematics
-from kraft_master_driver.teleop import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_reflection import (
     BASE_FRAME, ForceReflection, rate_command, REJECTION_REASONS, WRIST_FRAME)
 import numpy as np
 import pytest

@@ -7,10 +7,10 @@ import re
 import shlex
 
 from driver_harness import DriverProcess, next_domain_id, PACKAGE, REPO, RosClient
-from kraft_master_driver import kinematics
-from kraft_master_driver.node import PARAMETERS
-from kraft_master_driver.simulator import OPERATORS
-from kraft_master_driver.urdf_model import driver_names, main, package_urdf
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.nodes.driver import PARAMETERS
+from kraft_master_driver.simulation.simulator import OPERATORS
+from kraft_master_driver.tools.urdf_model import driver_names, main, package_urdf
 import numpy as np
 import pytest
 import rclpy

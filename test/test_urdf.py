@@ -4,8 +4,8 @@
 import math
 
 from driver_harness import REPO
-from kraft_master_driver import kinematics
-from kraft_master_driver.urdf_model import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.tools.urdf_model import (
     arm_prefix, BASE_LINK, build_urdf, driver_names, GRIP_LENGTH, GRIP_LINK, LINKS, main,
     package_file_name, package_urdf, rotation_to_rpy, WRIST_LINK)
 import numpy as np
@@ -35,7 +35,7 @@ def random_thetas(rng, n):
 def test_package_urdf_is_the_generators_output(arm):
     committed = (URDF_DIR / package_file_name(arm)).read_text()
     assert committed == package_urdf(arm), (
-        'urdf/ is out of date: run python -m kraft_master_driver.urdf_model urdf')
+        'urdf/ is out of date: run python -m kraft_master_driver.tools.urdf_model urdf')
 
 
 @pytest.mark.parametrize('arm', kinematics.ARMS)

@@ -13,7 +13,7 @@ import math
 import numbers
 from typing import NamedTuple
 
-from kraft_master_driver.kinematics import ARMS
+from kraft_master_driver.core.kinematics import ARMS
 import numpy as np
 import yaml
 

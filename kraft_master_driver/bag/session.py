@@ -34,7 +34,7 @@ import threading
 from typing import NamedTuple
 import zlib
 
-from kraft_master_driver import kinematics
+from kraft_master_driver.core import kinematics
 from lz4.frame import decompress as lz4_decompress
 import numpy as np
 from rosbags.interfaces import (
@@ -1014,8 +1014,9 @@ def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise
     poses and J^T F torques of a smooth task wrench follow from the pots as in the driver.
     Stamps are `rate_hz` apart with a little jitter and an occasional late cycle.
     """
-    from kraft_master_driver.calibration import ArmCalibration, POT_MAX
-    from kraft_master_driver.simulator import actuators_to_joints, RandomWalkOperator, Workspace
+    from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
+    from kraft_master_driver.simulation.simulator import (
+        actuators_to_joints, RandomWalkOperator, Workspace)
     calibration = calibration or ArmCalibration.nominal(arm)
     rng = np.random.default_rng(seed)
     period_ns = 1e9 / rate_hz

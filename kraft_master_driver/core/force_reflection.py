@@ -17,7 +17,7 @@ import operator
 import threading
 from typing import NamedTuple
 
-from kraft_master_driver import kinematics
+from kraft_master_driver.core import kinematics
 import numpy as np
 
 WRIST_FRAME, BASE_FRAME = 'wrist', 'base'

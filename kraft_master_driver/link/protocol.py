@@ -21,7 +21,7 @@ import binascii
 import struct
 from typing import NamedTuple
 
-from kraft_master_driver.calibration import POT_COUNT, POT_MAX
+from kraft_master_driver.core.calibration import POT_COUNT, POT_MAX
 
 AXIS_COUNT = 5
 INT16_MAX = 32767

@@ -21,7 +21,7 @@ import sqlite3
 import sys
 import time
 
-from kraft_master_driver import session
+from kraft_master_driver.bag import session
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

@@ -24,8 +24,9 @@ import sys
 import time
 from typing import NamedTuple
 
-from kraft_master_driver import kinematics, session
-from kraft_master_driver.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.bag import session
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from matplotlib.figure import Figure
 import numpy as np
 

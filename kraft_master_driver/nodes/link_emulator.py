@@ -25,9 +25,9 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from kraft_master_driver.delay_line import DelayLine, LinkModel
-from kraft_master_driver.node import GIL_SWITCH_INTERVAL_S
-from kraft_master_driver.parameters import (
+from kraft_master_driver.core.delay_line import DelayLine, LinkModel
+from kraft_master_driver.nodes.driver import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, run_node, Spec)
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor

@@ -16,17 +16,18 @@ from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
-from kraft_master_driver import cdr, kinematics
-from kraft_master_driver.calibration import ArmCalibration, CalibrationError
-from kraft_master_driver.device import KmcDevice
-from kraft_master_driver.monitoring import LoopStatistics, VelocityFilter
-from kraft_master_driver.parameters import (
-    check_value, declare_parameters, ParameterError, run_node, Spec)
-from kraft_master_driver.passivity import LinkMonitor, MasterPort
-from kraft_master_driver.protocol import (
-    CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
-from kraft_master_driver.teleop import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.core.force_reflection import (
     BASE_FRAME, ForceReflection, rate_command, STALE, WRIST_FRAME)
+from kraft_master_driver.core.loop_statistics import LoopStatistics, VelocityFilter
+from kraft_master_driver.core.passivity import LinkMonitor, MasterPort
+from kraft_master_driver.link import cdr
+from kraft_master_driver.link.device import KmcDevice
+from kraft_master_driver.link.protocol import (
+    CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
+from kraft_master_driver.nodes.parameters import (
+    check_value, declare_parameters, ParameterError, run_node, Spec)
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import CallbackGroup
@@ -263,7 +264,7 @@ class KraftMasterNode(Node):
             raise ParameterError(str(error)) from None
 
     def _start_simulator(self):
-        from kraft_master_driver.simulator import SimulatedKraftMaster
+        from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
         self.simulator = SimulatedKraftMaster(
             arm=self.arm, calibration=self.calibration,
             torque_scale=tuple(self.config['torque_scale']),

@@ -28,11 +28,11 @@ import sys
 import time
 from typing import NamedTuple
 
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import (
     ArmCalibration, CalibrationError, POT_COUNT, POT_JOINT, POT_MAX, POT_MEASURES)
-from kraft_master_driver.device import KmcDevice
-from kraft_master_driver.protocol import CODECS
+from kraft_master_driver.link.device import KmcDevice
+from kraft_master_driver.link.protocol import CODECS
 import numpy as np
 
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
@@ -234,7 +234,7 @@ class SimulatedOperator:
         The hand pushes beyond a stop in the coordinate the stop limits (q3 = th2 + th3 for
         the elbow), so the arm rests on the stop itself, not where friction leaves it.
         """
-        from kraft_master_driver.simulator import joints_to_actuators, Workspace
+        from kraft_master_driver.simulation.simulator import joints_to_actuators, Workspace
         if self._home is None:
             self._home = Workspace().home()
         known = np.radians(np.array(station.joints_deg, dtype=float))
@@ -435,7 +435,7 @@ def _stations(args, parser):
 
 def _simulator(args):
     """Return the built-in simulator of --port sim, not started."""
-    from kraft_master_driver.simulator import SimulatedKraftMaster
+    from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
     truth = ArmCalibration.from_yaml(args.sim_calibration) if args.sim_calibration else None
     try:
         return SimulatedKraftMaster(arm=args.arm, calibration=truth, operator='hold',

@@ -47,9 +47,9 @@ import time
 import tty
 from typing import NamedTuple
 
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import ArmCalibration, CalibrationError, POT_MAX
-from kraft_master_driver.protocol import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError, POT_MAX
+from kraft_master_driver.link.protocol import (
     AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, INT16_MAX,
     STATUS_AMPLIFIERS_ENABLED, STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT,
     STATUS_CORRUPT_COMMAND)

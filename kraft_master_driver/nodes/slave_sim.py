@@ -23,12 +23,13 @@ from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
-from kraft_master_driver import cdr, kinematics
-from kraft_master_driver.node import TakenByLoopThread
-from kraft_master_driver.parameters import (
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.passivity import LinkMonitor, SlavePort
+from kraft_master_driver.link import cdr
+from kraft_master_driver.nodes.driver import TakenByLoopThread
+from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, run_node, Spec)
-from kraft_master_driver.passivity import LinkMonitor, SlavePort
-from kraft_master_driver.simulator import Workspace
+from kraft_master_driver.simulation.simulator import Workspace
 import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node

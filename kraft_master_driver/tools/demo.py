@@ -22,9 +22,9 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver import kinematics
-from kraft_master_driver.calibration import ArmCalibration
-from kraft_master_driver.slave_sim import PARAMETERS as SLAVE_PARAMETERS
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -32,15 +32,16 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
-SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulator', '--operator', 'push']
-DRIVER = [sys.executable, '-m', 'kraft_master_driver.node', '--ros-args',
+SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+             '--operator', 'push']
+DRIVER = [sys.executable, '-m', 'kraft_master_driver.nodes.driver', '--ros-args',
           '-p', 'force_enabled_at_start:=true']
-SLAVE = [sys.executable, '-m', 'kraft_master_driver.slave_sim']
+SLAVE = [sys.executable, '-m', 'kraft_master_driver.nodes.slave_sim']
 DRIVER_NAME = 'kraft_master_node'
 WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
 START_TIMEOUT = 60.0  # s for the driver and the slave to come up
 REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
-EMULATOR = [sys.executable, '-m', 'kraft_master_driver.link_emulator', '--ros-args',
+EMULATOR = [sys.executable, '-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
             '-p', 'to_slave.topics:=[pose, master_energy]',
             '-p', 'to_master.topics:=[wrench, slave_energy, slave_pose]']
 

@@ -15,7 +15,7 @@ import threading
 import time
 from typing import NamedTuple
 
-from kraft_master_driver.protocol import (
+from kraft_master_driver.link.protocol import (
     AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, INT16_MAX, PotFrame,
     STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
 import serial
