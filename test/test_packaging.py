@@ -66,9 +66,10 @@ def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path)
 
 
 def readme_python_blocks():
-    """Return the README's ```python blocks."""
-    return re.findall(r'^```python\n(.*?)^```', (REPO / 'README.md').read_text(),
-                      re.MULTILINE | re.DOTALL)
+    """Return the ```python blocks of the README and of the pages in doc/."""
+    pages = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]
+    return [block for page in pages for block in re.findall(
+        r'^```python\n(.*?)^```', page.read_text(), re.MULTILINE | re.DOTALL)]
 
 
 def test_the_readme_python_snippets_run_from_any_directory(tmp_path):
