@@ -239,8 +239,8 @@ def test_every_import_but_ros_is_in_setup_py_install_requires():
 def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
     closure = requirements_closure(REPO / 'requirements-dev.txt')
     missing = set()
-    for directory in ('test', 'benchmarks'):
-        files = sorted((REPO / directory).glob('*.py'))
+    for directory in ('test', 'benchmarks', 'doc'):
+        files = sorted((REPO / directory).rglob('*.py'))
         local = {p.stem for p in sorted((REPO / 'test').glob('*.py')) + files}
         missing |= {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
                     for path in files for group in import_groups(path, local)

@@ -68,7 +68,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     rows = json.loads(args.json.read_text())['rows']
     plot(rows, args.out, 'benchmarks/delay_model.py --json doc/figures/delay_model.json: '
-         'the driver\'s and the slave\'s classes stepped together in simulated time '
+         "the driver's and the slave's classes stepped together in simulated time "
          '(device 1 kHz, slave 500 Hz, exact delay)')
     return 0
 

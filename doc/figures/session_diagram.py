@@ -17,8 +17,8 @@ import sys
 import matplotlib
 
 matplotlib.use('Agg')
-import matplotlib.pyplot as plt  # noqa: E402, I100
-from matplotlib.patches import FancyArrowPatch, FancyBboxPatch, Rectangle  # noqa: E402
+from matplotlib.patches import FancyArrowPatch, FancyBboxPatch, Rectangle  # noqa: E402, I100
+import matplotlib.pyplot as plt  # noqa: E402
 
 MASTER_SIDE = '#eef3fb'
 SLAVE_SIDE = '#fbf1e8'
@@ -31,7 +31,8 @@ SERIAL = '#7b3f00'
 def box(ax, x, y, width, height, title, note, dashed=False):
     """Draw a process box centred at (x, y) with a bold title and a note under it."""
     ax.add_patch(FancyBboxPatch(
-        (x - width / 2, y - height / 2), width, height, boxstyle='round,pad=0.01,rounding_size=0.015',
+        (x - width / 2, y - height / 2), width, height,
+        boxstyle='round,pad=0.01,rounding_size=0.015',
         facecolor=PROCESS, edgecolor=EDGE, linewidth=1.6, linestyle='--' if dashed else '-'))
     ax.text(x, y + (0.022 if note else 0.0), title, ha='center', va='center', fontsize=11,
             fontweight='bold', family='monospace')
@@ -69,10 +70,12 @@ def draw(path):
     row = 0.6
     box(ax, 0.1, row, 0.17, 0.13, 'kraft_master_sim',
         'simulated KMC 9100 and\nhand (or the device)')
-    box(ax, 0.41, row, 0.19, 0.13, 'kraft_master_node', 'the driver: 1 kHz loop,\nJ^T F to torques')
+    box(ax, 0.41, row, 0.19, 0.13, 'kraft_master_node',
+        'the driver: 1 kHz loop,\nJ^T F to torques')
     box(ax, 0.64, row, 0.17, 0.13, 'kraft_master_\nlink_emulator',
         '\ndelay, jitter, loss\n(optional)', dashed=True)
-    box(ax, 0.87, row, 0.19, 0.13, 'kraft_master_\nslave_sim', '\nslave arm and wall\n(or a real bridge)')
+    box(ax, 0.87, row, 0.19, 0.13, 'kraft_master_\nslave_sim',
+        '\nslave arm and wall\n(or a real bridge)')
 
     arrow(ax, (0.185, row), (0.315, row), 'serial link\n(pty or TCP)', colour=SERIAL,
           offset=(0.0, 0.045), both=True)
