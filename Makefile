@@ -80,8 +80,9 @@ lock: $(DEVELOPMENT)
 lint: $(DEVELOPMENT)
 	$(VPY) -m pytest -q -m linter
 
-# The pages of doc/ as HTML in build/docs/ (open build/docs/index.html), as rosdoc2 would build
-# them; every Sphinx warning, a link to a missing page or heading among them, is an error.
+# The pages of doc/ as HTML in build/docs/ (open build/docs/index.html): the Sphinx project
+# rosdoc2 builds too. Every Sphinx warning, a link to a missing page or heading among them, is
+# an error.
 docs: $(DEVELOPMENT)
 	$(VPY) -m sphinx -W --keep-going -q -b html -d build/doctrees doc build/docs
 	@echo "build/docs/index.html"
