@@ -202,3 +202,12 @@ def test_each_console_script_is_in_the_subpackage_the_table_names():
     assert entry_points and set(rows) == set(entry_points)
     for name, subpackage in rows.items():
         assert entry_points[name].startswith(f'{PACKAGE}.{subpackage}.'), name
+
+
+def test_the_changelog_is_rest_with_the_ros_title():
+    """CHANGELOG.rst as catkin_pkg and bloom read it: valid reST, the package's title."""
+    core = pytest.importorskip('docutils.core')
+    document = core.publish_doctree((REPO / 'CHANGELOG.rst').read_text(),
+                                    settings_overrides={'halt_level': 2, 'report_level': 2})
+    assert document.next_node().astext().startswith(f'Changelog for package {PACKAGE}')
+    assert 'Forthcoming' in document.astext()
