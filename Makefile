@@ -24,7 +24,7 @@ PASSIVITY ?= off
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
-.PHONY: demo test test-latest lock lint bench soak venv clean
+.PHONY: demo test test-latest lock lint docs doc-figures bench soak venv clean
 
 # Everything `make demo` and `make test` install, without running either.
 venv: $(DEVELOPMENT)
@@ -48,7 +48,7 @@ $(RUN_STAMP): requirements.txt $(LOCK) | $(VPY)
 	@touch $@
 
 $(DEV_STAMP): requirements-dev.txt $(RUN_STAMP)
-	@echo "installing the test tools: pytest, linters, colcon (requirements-dev.txt)"
+	@echo "installing the test tools: pytest, linters, colcon, Sphinx (requirements-dev.txt)"
 	@start=$$SECONDS; $(PIP) -r requirements-dev.txt $(CONSTRAINTS) && \
 	echo "  done in $$((SECONDS - start)) s"
 	@touch $@
@@ -73,12 +73,26 @@ test-latest:
 # green `make test-latest`) as the versions every later install takes.
 lock: $(DEVELOPMENT)
 	@{ echo '# Made by `make lock` from a venv in which `make test` passed: the versions'; \
-	echo '# `make demo` and `make test` install. Refresh: see README, "Pinned versions".'; \
+	echo '# `make demo` and `make test` install. Refresh: doc/architecture.md, "Pinned versions".'; \
 	$(VPY) -m pip freeze --all --exclude-editable | grep -v '^pip=='; } > $(LOCK)
 	@echo "$(LOCK): $$(grep -vc '^#' $(LOCK)) versions from $(VENV)"
 
 lint: $(DEVELOPMENT)
 	$(VPY) -m pytest -q -m linter
+
+# The pages of doc/ as HTML in build/docs/ (open build/docs/index.html): the Sphinx project
+# rosdoc2 builds too. Every Sphinx warning, a link to a missing page or heading among them, is
+# an error.
+docs: $(DEVELOPMENT)
+	$(VPY) -m sphinx -W --keep-going -q -b html -d build/doctrees doc build/docs
+	@echo "build/docs/index.html"
+
+# The pictures of doc/ that scripts draw: the session's processes and topics, and the passivity
+# plot from doc/figures/delay_model.json (one run of benchmarks/delay_model.py --json ...). The
+# session report's figure needs a live run: bash doc/figures/session_report.sh.
+doc-figures: $(DEVELOPMENT)
+	$(VPY) doc/figures/session_diagram.py doc/figures/session.png
+	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
 
 # Figures, not tests: each prints a table (loop and link also write JSON).
 bench: $(DEVELOPMENT)

@@ -34,8 +34,9 @@ def ctl(domain_id, *args, cwd):
 
 
 def test_the_readme_venv_commands_work_as_typed():
-    """The README's block under 'Without a ROS install', line by line, from the repository."""
-    section = (REPO / 'README.md').read_text().partition('### Without a ROS install')[2]
+    """The block of doc/getting-started.md on the venv's commands, line by line, from the repo."""
+    section = (REPO / 'doc' / 'getting-started.md').read_text().partition(
+        '### The commands in the venv')[2]
     lines = re.search(r'^```\n(.*?)^```', section, re.MULTILINE | re.DOTALL).group(1)
     env = user_env(next_domain_id())
     driver = None

@@ -7,7 +7,7 @@ from ament_flake8.main import main_with_errors
 import pytest
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
-CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'launch', 'setup.py')
+CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'launch', 'doc', 'setup.py')
 
 
 @pytest.mark.flake8

@@ -98,10 +98,12 @@ def test_launch_description_declares_its_arguments(installed_share, file_name, a
 
 
 def readme_launch_commands():
-    """Return (launch file, {argument: value}) of each `ros2 launch` line of the README."""
-    readme = (REPO / 'README.md').read_text().replace('\\\n', ' ')
+    """Return (launch file, {argument: value}) of each `ros2 launch` line of README and doc/."""
+    pages = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]
+    blocks = [block for page in pages for block in re.findall(
+        r'```\n(.*?)```', page.read_text().replace('\\\n', ' '), re.DOTALL)]
     commands = []
-    for block in re.findall(r'```\n(.*?)```', readme, re.DOTALL):
+    for block in blocks:
         for line in block.splitlines():
             if line.startswith(f'ros2 launch {PACKAGE} '):
                 tokens = shlex.split(line, comments=True)

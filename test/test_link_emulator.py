@@ -298,10 +298,10 @@ def test_node_loses_the_set_fraction_and_keeps_order_under_jitter(two_domains):
 # -- the README ----------------------------------------------------------------------------
 
 def readme_section():
-    """Return the README's section on the link emulator."""
-    text = (REPO / 'README.md').read_text()
-    start = text.index('### The link emulator')
-    return text[start:text.index('\n### ', start + 1)]
+    """Return the section of doc/teleoperation.md on the link emulator."""
+    text = (REPO / 'doc' / 'teleoperation.md').read_text()
+    start = text.index('## The link emulator')
+    return text[start:text.index('\n## ', start + 1)]
 
 
 def test_readme_table_lists_every_parameter_with_its_default():

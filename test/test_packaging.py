@@ -66,9 +66,10 @@ def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path)
 
 
 def readme_python_blocks():
-    """Return the README's ```python blocks."""
-    return re.findall(r'^```python\n(.*?)^```', (REPO / 'README.md').read_text(),
-                      re.MULTILINE | re.DOTALL)
+    """Return the ```python blocks of the README and of the pages in doc/."""
+    pages = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]
+    return [block for page in pages for block in re.findall(
+        r'^```python\n(.*?)^```', page.read_text(), re.MULTILINE | re.DOTALL)]
 
 
 def test_the_readme_python_snippets_run_from_any_directory(tmp_path):
@@ -238,8 +239,8 @@ def test_every_import_but_ros_is_in_setup_py_install_requires():
 def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
     closure = requirements_closure(REPO / 'requirements-dev.txt')
     missing = set()
-    for directory in ('test', 'benchmarks'):
-        files = sorted((REPO / directory).glob('*.py'))
+    for directory in ('test', 'benchmarks', 'doc'):
+        files = sorted((REPO / directory).rglob('*.py'))
         local = {p.stem for p in sorted((REPO / 'test').glob('*.py')) + files}
         missing |= {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
                     for path in files for group in import_groups(path, local)

@@ -1,6 +1,6 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""One two-arm convention: the README's recipe, the URDFs, the driver, the RViz config agree."""
+"""One two-arm convention: the docs' recipe, the URDFs, the driver, the RViz config agree."""
 import contextlib
 import io
 import re
@@ -17,13 +17,13 @@ import rclpy
 import yaml
 import yourdfpy
 
-README = (REPO / 'README.md').read_text()
+README = (REPO / 'doc' / 'getting-started.md').read_text()
 RVIZ = REPO / 'rviz' / 'kraft_master.rviz'
 WRENCH = (3.0, -2.0, 4.0, 0.05, -0.1, 0.08)
 
 
 def readme_recipe():
-    """Return the README's two-arm recipe: {namespace: (driver tokens, URDF tool arguments)}."""
+    """Return the two-arm recipe of doc/getting-started.md: {namespace: (driver, URDF args)}."""
     blocks = re.findall(r'```\n(.*?)```', README, re.DOTALL)
     (block,) = [b for b in blocks if 'kraft_master_urdf --arm left' in b]
     recipe = {}
