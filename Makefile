@@ -30,10 +30,10 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 venv: $(DEVELOPMENT)
 
 $(VPY):
-	@command -v $(PYTHON) >/dev/null || { echo "make: no $(PYTHON): install Python 3.10 or newer \
+	@command -v $(PYTHON) >/dev/null || { echo "make: no $(PYTHON): install Python 3.11 or newer \
 	(Debian/Ubuntu: sudo apt install python3 python3-venv)"; exit 1; }
-	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 10))' || { echo "make: \
-	$$($(PYTHON) --version) is too old: ROS 2 Jazzy's wheels need Python 3.10 or newer"; exit 1; }
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || { echo "make: \
+	$$($(PYTHON) --version) is too old: the pinned versions need Python 3.11 or newer"; exit 1; }
 	@$(PYTHON) -c 'import ensurepip' 2>/dev/null || { echo "make: $(PYTHON) cannot create a \
 	virtual environment: install python3-venv (Debian/Ubuntu: sudo apt install python3-venv)"; exit 1; }
 	@echo "creating $(VENV) with $$($(PYTHON) --version)"

@@ -308,6 +308,6 @@ def test_later_runs_install_only_what_a_changed_file_asks_for(
 def test_without_python_make_says_what_to_install(checkout):
     result = make(checkout, 'demo', 'PYTHON=no-such-python3')
     assert result.returncode != 0
-    assert result.stdout == ('make: no no-such-python3: install Python 3.10 or newer '
+    assert result.stdout == ('make: no no-such-python3: install Python 3.11 or newer '
                              '(Debian/Ubuntu: sudo apt install python3 python3-venv)\n')
     assert not (checkout / '.venv').exists()
