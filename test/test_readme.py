@@ -5,7 +5,7 @@ import re
 
 from driver_harness import REPO
 from kraft_master_driver.nodes.driver import PARAMETERS
-from kraft_master_driver.simulation.simulator import OPERATORS
+from kraft_master_driver.simulation.operators import OPERATORS
 import pytest
 
 README = (REPO / 'README.md').read_text()

@@ -1015,8 +1015,8 @@ def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise
     Stamps are `rate_hz` apart with a little jitter and an occasional late cycle.
     """
     from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
-    from kraft_master_driver.simulation.simulator import (
-        actuators_to_joints, RandomWalkOperator, Workspace)
+    from kraft_master_driver.simulation.model import actuators_to_joints, Workspace
+    from kraft_master_driver.simulation.operators import RandomWalkOperator
     calibration = calibration or ArmCalibration.nominal(arm)
     rng = np.random.default_rng(seed)
     period_ns = 1e9 / rate_hz
