@@ -30,7 +30,7 @@ from kraft_master_driver.core.force_reflection import ForceReflection  # noqa: E
 from kraft_master_driver.core.loop_statistics import VelocityFilter  # noqa: E402
 from kraft_master_driver.core.passivity import MasterPort, SlavePort  # noqa: E402
 from kraft_master_driver.nodes.slave_sim import SlaveArm, SlaveLimits, Wall  # noqa: E402
-from kraft_master_driver.simulation.simulator import (  # noqa: E402
+from kraft_master_driver.simulation.model import (  # noqa: E402
     DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
 
 ARM = 'right'

@@ -23,7 +23,9 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from kraft_master_driver.bag import session  # noqa: E402
+from kraft_master_driver.bag.common import typestore  # noqa: E402
+from kraft_master_driver.bag.recorder import BagRecorder, STORAGES  # noqa: E402
+from kraft_master_driver.bag.samples import simulate_samples, write_samples  # noqa: E402
 from kraft_master_driver.core.calibration import ArmCalibration  # noqa: E402
 from kraft_master_driver.tools import report  # noqa: E402
 from rosbags.rosbag2 import Reader  # noqa: E402
@@ -54,11 +56,11 @@ class Stopwatch:
 def synthesise(path, storage, samples):
     """Write a bag of `samples` simulated samples of the right arm at the root namespace."""
     start_ns = START_NS
-    with session.BagRecorder(path, storage) as recorder:
+    with BagRecorder(path, storage) as recorder:
         for start in range(0, samples, BATCH):
             count = min(BATCH, samples - start)
-            batch = session.simulate_samples(count, seed=start, start_ns=start_ns)
-            session.write_samples(recorder, '', batch)
+            batch = simulate_samples(count, seed=start, start_ns=start_ns)
+            write_samples(recorder, '', batch)
             start_ns = int(batch.stamp[-1]) + 1_000_000
             print(f'  {start + count} samples written', end='\r', flush=True)
     print()
@@ -66,7 +68,7 @@ def synthesise(path, storage, samples):
 
 def convert(source, path, storage):
     """Copy every message of the bag `source` into a new bag with another storage plugin."""
-    with Reader(source) as reader, session.BagRecorder(path, storage) as recorder:
+    with Reader(source) as reader, BagRecorder(path, storage) as recorder:
         for connection in reader.connections:
             recorder.add_topic(connection.topic, connection.msgtype,
                                connection.ext.offered_qos_profiles)
@@ -86,7 +88,7 @@ def perturbed_calibration(directory):
 
 def rosbags_baseline(bag, read_seconds, count=20_000):
     """Time rosbags' own Reader and deserialisation on `count` messages; print the ratio."""
-    store = session.typestore()
+    store = typestore()
     with Reader(bag) as reader:
         total = reader.message_count
         with Stopwatch() as reading:
@@ -123,7 +125,7 @@ def main():
     """Synthesise the bags (unless kept), time the report on each; print the figures."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--samples', type=int, default=1_000_000)
-    parser.add_argument('--storage', nargs='+', choices=sorted(session.STORAGES),
+    parser.add_argument('--storage', nargs='+', choices=sorted(STORAGES),
                         default=['mcap', 'sqlite3'])
     parser.add_argument('--bag-dir', help='keep the synthetic bags here and reuse them')
     args = parser.parse_args()

@@ -16,7 +16,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from kraft_master_driver.core.kinematics import ARMS
-from kraft_master_driver.simulation.simulator import OPERATORS
+from kraft_master_driver.simulation.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names
 from launch import LaunchDescription
 from launch.actions import (

@@ -32,8 +32,8 @@ import time
 from driver_harness import executable, installed_env, next_domain_id
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
-from kraft_master_driver.simulation.simulator import (
-    joints_to_actuators, SimulatedKraftMaster, Workspace)
+from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 from netns import TwoHosts
 import numpy as np
 

@@ -7,7 +7,11 @@ from pathlib import Path
 import sqlite3
 import sys
 
-from kraft_master_driver.bag import session
+from kraft_master_driver.bag.common import (
+    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, typestore, WRENCH_STAMPED)
+from kraft_master_driver.bag.recorder import (
+    _share_directory, BagRecorder, message_definition, STORAGES)
+from kraft_master_driver.bag.samples import simulate_samples, write_samples
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
@@ -16,7 +20,7 @@ import pytest
 from rosbags.rosbag2 import Reader
 import yaml
 
-STORE = session.typestore()
+STORE = typestore()
 # The tables rosbag2 Jazzy creates (rosbag2_storage_sqlite3/src/.../sqlite_storage.cpp,
 # branch jazzy, SqliteStorage::initialize), as sqlite_master keeps them.
 JAZZY_SQLITE3_TABLES = [
@@ -50,10 +54,10 @@ def generated_type_hash(msgtype):
 
 def record(path, storage):
     """Write two arms' synthetic sessions; return the closed BagRecorder."""
-    with session.BagRecorder(path, storage) as recorder:
+    with BagRecorder(path, storage) as recorder:
         for namespace, seed in (('/left', 1), ('/right', 2)):
-            samples = session.simulate_samples(SAMPLES, namespace[1:], seed=seed)
-            session.write_samples(recorder, namespace, samples, diagnostics_every=500)
+            samples = simulate_samples(SAMPLES, namespace[1:], seed=seed)
+            write_samples(recorder, namespace, samples, diagnostics_every=500)
     return recorder
 
 
@@ -61,7 +65,7 @@ def record(path, storage):
 def bags(tmp_path_factory):
     """Return {storage: (bag directory, its BagRecorder)}."""
     paths = {storage: tmp_path_factory.mktemp(storage) / 'session_a'
-             for storage in session.STORAGES}
+             for storage in STORAGES}
     return {storage: (path, record(path, storage)) for storage, path in paths.items()}
 
 
@@ -70,7 +74,7 @@ def metadata_yaml(path):
     return yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
 
 
-@pytest.mark.parametrize('storage', session.STORAGES)
+@pytest.mark.parametrize('storage', STORAGES)
 def test_metadata_is_rosbag2_jazzy(bags, storage):
     path, recorder = bags[storage]
     info = metadata_yaml(path)
@@ -125,7 +129,7 @@ def test_mcap_read_by_the_mcap_package(bags):
             reference = STORE.deserialize_cdr(message.data, schema.name)
             assert decoded.header.stamp.sec == reference.header.stamp.sec
             assert decoded.header.stamp.nanosec == reference.header.stamp.nanosec
-            if schema.name == session.JOINT_STATE:
+            if schema.name == JOINT_STATE:
                 np.testing.assert_array_equal(decoded.position, reference.position)
         assert counts == recorder.counts
 
@@ -133,14 +137,14 @@ def test_mcap_read_by_the_mcap_package(bags):
 def test_publish_time_is_the_send_time(tmp_path):
     path = tmp_path / 'times'
     written = [(1_000_000 + 10 * i, 999_000 + 7 * i) for i in range(1000)]
-    message = STORE.serialize_cdr(STORE.types[session.JOINT_STATE](
+    message = STORE.serialize_cdr(STORE.types[JOINT_STATE](
         header=STORE.types['std_msgs/msg/Header'](
             stamp=STORE.types['builtin_interfaces/msg/Time'](sec=1, nanosec=2), frame_id='b'),
         name=[], position=np.zeros(0), velocity=np.zeros(0), effort=np.zeros(0)),
-        session.JOINT_STATE)
-    with session.BagRecorder(path, 'mcap') as recorder:
-        recorder.add_topic('/joint_states', session.JOINT_STATE)
-        recorder.add_topic('/other', session.JOINT_STATE)
+        JOINT_STATE)
+    with BagRecorder(path, 'mcap') as recorder:
+        recorder.add_topic('/joint_states', JOINT_STATE)
+        recorder.add_topic('/other', JOINT_STATE)
         for log_time, publish_time in written:
             recorder.write('/joint_states', log_time, message, publish_time)
         recorder.write('/other', 5, message)
@@ -167,8 +171,7 @@ def test_sqlite3_schema_is_rosbag2_jazzys(bags):
             'SELECT topic_type, encoding, type_description_hash FROM message_definitions'))
         assert sorted(definitions) == sorted(
             (msgtype, 'ros2msg', generated_type_hash(msgtype)) for msgtype in
-            (session.JOINT_STATE, session.POSE_STAMPED, session.WRENCH_STAMPED,
-             session.DIAGNOSTIC_ARRAY))
+            (JOINT_STATE, POSE_STAMPED, WRENCH_STAMPED, DIAGNOSTIC_ARRAY))
         counts = dict(database.execute(
             'SELECT topics.name, count(*) FROM messages JOIN topics ON topic_id = topics.id '
             'GROUP BY topics.name'))
@@ -178,13 +181,13 @@ def test_sqlite3_schema_is_rosbag2_jazzys(bags):
 
 
 def test_message_definitions_are_the_installed_msg_files():
-    encoding, text = session.message_definition(session.JOINT_STATE)
+    encoding, text = message_definition(JOINT_STATE)
     sections = text.split('\n' + '=' * 80 + '\n')
     assert encoding == 'ros2msg'
     assert [s.partition('\n')[0] for s in sections[1:]] == [
         'MSG: std_msgs/Header', 'MSG: builtin_interfaces/Time']
     try:
-        share = session._share_directory('sensor_msgs')
+        share = _share_directory('sensor_msgs')
     except LookupError:
         pytest.skip('sensor_msgs is not installed where the ament index finds it')
     assert sections[0] == (share / 'msg' / 'JointState.msg').read_text()

@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 
 from driver_harness import PACKAGE, REPO
 from kraft_master_driver.nodes.driver import PARAMETERS
-from kraft_master_driver.simulation.simulator import OPERATORS
+from kraft_master_driver.simulation.operators import OPERATORS
 import pytest
 import yaml
 

@@ -13,7 +13,10 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from kraft_master_driver.bag import session
+from kraft_master_driver.bag.common import (
+    DIAGNOSTIC_ARRAY, DRIVER_TOPICS, JOINT_STATE, POSE_STAMPED, typestore)
+from kraft_master_driver.bag.reader import read_topics
+from kraft_master_driver.bag.recorder import BagRecorder, qos_profile, STORAGES
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
@@ -46,7 +49,7 @@ def type_name(msg_type):
 def offered_qos(info):
     """Return the QoS profile a publisher offers, as ros2 bag stores it."""
     qos = info.qos_profile
-    return session.qos_profile(
+    return qos_profile(
         reliability=qos.reliability.name, durability=qos.durability.name,
         history=qos.history.name, depth=qos.depth, deadline_ns=qos.deadline.nanoseconds,
         lifespan_ns=qos.lifespan.nanoseconds, liveliness=qos.liveliness.name,
@@ -65,8 +68,8 @@ class LiveRecorder:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.wrench_pub = self.node.create_publisher(WrenchStamped, '/wrench', RELIABLE)
-        self.bags = {storage: directory / storage for storage in session.STORAGES}
-        self.recorders = [session.BagRecorder(path, storage)
+        self.bags = {storage: directory / storage for storage in STORAGES}
+        self.recorders = [BagRecorder(path, storage)
                           for storage, path in self.bags.items()]
         self.received = {topic: [] for topic in TOPICS}
         self.offered = {}
@@ -143,9 +146,9 @@ def recorded(install_prefix, tmp_path_factory):
     return recorder
 
 
-@pytest.mark.parametrize('storage', sorted(session.STORAGES))
+@pytest.mark.parametrize('storage', sorted(STORAGES))
 def test_bag_holds_what_was_received(recorded, storage):
-    store = session.typestore()
+    store = typestore()
     with Reader(recorded.bags[storage]) as reader:
         connections = {c.topic: c for c in reader.connections}
         assert set(connections) == set(TOPICS)
@@ -165,7 +168,7 @@ def test_bag_holds_what_was_received(recorded, storage):
     states = [store.deserialize_cdr(d, connections['/joint_states'].msgtype)
               for _, d in in_bag['/joint_states']]
     pots = {(m.header.stamp.sec, m.header.stamp.nanosec): m.position for m in (
-        store.deserialize_cdr(d, session.JOINT_STATE) for _, d in in_bag['/pots'])}
+        store.deserialize_cdr(d, JOINT_STATE) for _, d in in_bag['/pots'])}
     assert all(list(s.name) == list(kinematics.JOINT_NAMES) for s in states)
     nominal = ArmCalibration.nominal('right')
     matched = [(s.position, pots[(s.header.stamp.sec, s.header.stamp.nanosec)])
@@ -176,14 +179,14 @@ def test_bag_holds_what_was_received(recorded, storage):
     positions = np.array([s.position for s in states])
     assert np.ptp(positions, axis=0).max() > np.radians(10.0), 'the sweeping hand moves the arm'
     assert any(np.abs(s.effort).max() > 0.01 for s in states), 'the wrench gives torques'
-    diagnostics = store.deserialize_cdr(in_bag['/diagnostics'][-1][1], session.DIAGNOSTIC_ARRAY)
+    diagnostics = store.deserialize_cdr(in_bag['/diagnostics'][-1][1], DIAGNOSTIC_ARRAY)
     assert any(v.key == 'link timeouts' for v in diagnostics.status[0].values)
 
 
-@pytest.mark.parametrize('storage', sorted(session.STORAGES))
+@pytest.mark.parametrize('storage', sorted(STORAGES))
 def test_fast_reader_equals_rosbags_on_the_recording(recorded, storage):
-    store = session.typestore()
-    data = session.read_topics(recorded.bags[storage], TOPICS)
+    store = typestore()
+    data = read_topics(recorded.bags[storage], TOPICS)
     for topic, msg_type in TOPICS.items():
         received = recorded.received[topic]
         np.testing.assert_array_equal(data[topic].log_time, [t for t, _ in received])
@@ -193,12 +196,12 @@ def test_fast_reader_equals_rosbags_on_the_recording(recorded, storage):
             continue
         stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in messages]
         np.testing.assert_array_equal(data[topic].fields['stamp'], stamps)
-    states = [store.deserialize_cdr(bytes(d), session.JOINT_STATE)
+    states = [store.deserialize_cdr(bytes(d), JOINT_STATE)
               for _, d in recorded.received['/joint_states']]
     for field in ('position', 'velocity', 'effort'):
         np.testing.assert_array_equal(data['/joint_states'].fields[field],
                                       [getattr(s, field) for s in states])
-    poses = [store.deserialize_cdr(bytes(d), session.POSE_STAMPED).pose
+    poses = [store.deserialize_cdr(bytes(d), POSE_STAMPED).pose
              for _, d in recorded.received['/pose']]
     np.testing.assert_array_equal(data['/pose'].fields['orientation'],
                                   [[p.orientation.x, p.orientation.y, p.orientation.z,
@@ -214,8 +217,8 @@ def test_report_of_the_recording(recorded, tmp_path, capsys):
     assert '/ (right arm)' in printed and 'missing' not in printed
     with open(tmp_path / 'mcap_samples.csv', newline='') as stream:
         rows = list(csv.reader(stream))[1:]
-    store = session.typestore()
-    states = [store.deserialize_cdr(bytes(d), session.JOINT_STATE)
+    store = typestore()
+    states = [store.deserialize_cdr(bytes(d), JOINT_STATE)
               for _, d in recorded.received['/joint_states']]
     assert [int(row[0]) for row in rows] == [
         s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in states]
@@ -322,7 +325,7 @@ def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_pat
     assert sorted(p.name for p in bag.iterdir()) == sorted(
         ['metadata.yaml', f'arm_session_0.{"mcap" if storage == "mcap" else "db3"}'])
 
-    store = session.typestore()
+    store = typestore()
     read = collections.Counter()
     with Reader(bag) as reader:
         assert {c.topic: c.msgcount for c in reader.connections} == closed
@@ -331,7 +334,7 @@ def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_pat
             read[connection.topic] += 1
     assert read == published
     (endpoint_hash,) = endpoint_hashes
-    assert endpoint_hash == generated_type_hash(session.JOINT_STATE)
+    assert endpoint_hash == generated_type_hash(JOINT_STATE)
 
     if storage == 'sqlite3':
         database = sqlite3.connect(bag / 'arm_session_0.db3')
@@ -355,7 +358,7 @@ def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_pat
 
 def test_record_selects_the_driver_topics_of_each_namespace():
     assert record.driver_topics(['right', 'left']) == ['/diagnostics'] + [
-        f'/{arm}/{name}' for arm in ('left', 'right') for name in sorted(session.DRIVER_TOPICS)]
+        f'/{arm}/{name}' for arm in ('left', 'right') for name in sorted(DRIVER_TOPICS)]
     assert record.driver_topics(['/']) == ['/diagnostics', '/joint_states', '/pose', '/pots',
                                            '/rate_command', '/wrench']
 

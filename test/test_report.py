@@ -1,10 +1,16 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""Reading recorded sessions back (session.py) and kraft_master_report on synthetic bags."""
+"""Reading recorded sessions back (bag/reader.py) and kraft_master_report on synthetic bags."""
 import csv
 import math
 
-from kraft_master_driver.bag import session
+from kraft_master_driver.bag.common import (
+    BAG_VERSION, DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, typestore,
+    WRENCH_STAMPED)
+from kraft_master_driver.bag.decoding import decode_cdr, LAYOUTS
+from kraft_master_driver.bag.reader import read_topics
+from kraft_master_driver.bag.recorder import BagRecorder, qos_profile
+from kraft_master_driver.bag.samples import simulate_samples, write_samples
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.tools import report
@@ -14,7 +20,7 @@ import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 
-STORE = session.typestore()
+STORE = typestore()
 TYPES = STORE.types
 SAMPLES = 3000
 
@@ -34,18 +40,18 @@ def random_message(msgtype, rng):
         x, y, z = rng.normal(size=3).tolist()
         return TYPES[f'geometry_msgs/msg/{name}'](x=x, y=y, z=z)
 
-    if msgtype == session.JOINT_STATE:
+    if msgtype == JOINT_STATE:
         names = [''.join(rng.choice(list('xyz_1'), rng.integers(0, 12)))
                  for _ in range(rng.integers(0, 7))]
         return TYPES[msgtype](header=header(rng), name=names,
                               **{field: rng.normal(size=rng.integers(0, 8))
                                  for field in ('position', 'velocity', 'effort')})
-    if msgtype == session.POSE_STAMPED:
+    if msgtype == POSE_STAMPED:
         qx, qy, qz, qw = rng.normal(size=4).tolist()
         return TYPES[msgtype](header=header(rng), pose=TYPES['geometry_msgs/msg/Pose'](
             position=vector('Point'),
             orientation=TYPES['geometry_msgs/msg/Quaternion'](x=qx, y=qy, z=qz, w=qw)))
-    if msgtype == session.WRENCH_STAMPED:
+    if msgtype == WRENCH_STAMPED:
         return TYPES[msgtype](header=header(rng), wrench=TYPES['geometry_msgs/msg/Wrench'](
             force=vector('Vector3'), torque=vector('Vector3')))
     return TYPES[msgtype](header=header(rng), twist=TYPES['geometry_msgs/msg/Twist'](
@@ -56,10 +62,10 @@ def expected_fields(message):
     """Return the fields session's decoder gives for a message deserialised by rosbags."""
     stamp = message.header.stamp
     fields = {'stamp': stamp.sec * 1_000_000_000 + stamp.nanosec}
-    if message.__msgtype__ == session.JOINT_STATE:
+    if message.__msgtype__ == JOINT_STATE:
         fields.update(position=message.position, velocity=message.velocity,
                       effort=message.effort)
-    elif message.__msgtype__ == session.POSE_STAMPED:
+    elif message.__msgtype__ == POSE_STAMPED:
         p, q = message.pose.position, message.pose.orientation
         fields.update(position=[p.x, p.y, p.z], orientation=[q.x, q.y, q.z, q.w])
     else:
@@ -83,7 +89,7 @@ def assert_row_equals(data, row, message):
         assert np.isnan(decoded[len(value):]).all()
 
 
-@pytest.mark.parametrize('msgtype', sorted(session.LAYOUTS))
+@pytest.mark.parametrize('msgtype', sorted(LAYOUTS))
 @pytest.mark.parametrize('little_endian', [True, False])
 def test_numpy_decoding_equals_rosbags_deserialisation(msgtype, little_endian):
     rng = np.random.default_rng(len(msgtype) + little_endian)
@@ -92,28 +98,28 @@ def test_numpy_decoding_equals_rosbags_deserialisation(msgtype, little_endian):
            for m in messages]
     # ROS middlewares may pad a message to 4 bytes; rosbags reads such padding too.
     raw = [data + b'\0' * (i % 4) for i, data in enumerate(raw)]
-    data = session.decode_cdr(raw, msgtype)
+    data = decode_cdr(raw, msgtype)
     assert len(data) == len(raw) and data.malformed == 0
     for row, data_bytes in enumerate(raw):
         reference = STORE.deserialize_cdr(data_bytes, msgtype)
         assert_row_equals(data, row, reference)
     assert data.strings['frame_id'] == messages[0].header.frame_id
-    if msgtype == session.JOINT_STATE:
+    if msgtype == JOINT_STATE:
         assert data.strings['name'] == messages[0].name
 
 
 def test_malformed_messages_are_counted_not_raised():
     rng = np.random.default_rng(2)
-    good = [bytes(STORE.serialize_cdr(random_message(session.JOINT_STATE, rng),
-                                      session.JOINT_STATE)) for _ in range(20)]
+    good = [bytes(STORE.serialize_cdr(random_message(JOINT_STATE, rng),
+                                      JOINT_STATE)) for _ in range(20)]
     bad = [b'', b'\x00', good[0][:-9], b'\x00\x02\x00\x00' + good[0][4:], rng.bytes(64),
            good[1][:12] + b'\xff\xff\xff\x7f' + good[1][16:]]
-    data = session.decode_cdr(bad[:3] + good + bad[3:], session.JOINT_STATE)
+    data = decode_cdr(bad[:3] + good + bad[3:], JOINT_STATE)
     assert data.malformed == len(bad)
     assert len(data) == len(good)
     for row, data_bytes in enumerate(good):
-        assert_row_equals(data, row, STORE.deserialize_cdr(data_bytes, session.JOINT_STATE))
-    diagnostics = session.decode_cdr([good[0], b'\x00\x01\x00\x00'], session.DIAGNOSTIC_ARRAY)
+        assert_row_equals(data, row, STORE.deserialize_cdr(data_bytes, JOINT_STATE))
+    diagnostics = decode_cdr([good[0], b'\x00\x01\x00\x00'], DIAGNOSTIC_ARRAY)
     assert len(diagnostics) == 0 and diagnostics.malformed == 2
 
 
@@ -121,15 +127,15 @@ def write_bag(path, storage, arms, compression=None, samples=SAMPLES):
     """Write a synthetic session: {namespace: (arm, seed)}; return {namespace: Samples}."""
     if compression is None:
         written = {}
-        with session.BagRecorder(path, storage) as recorder:
+        with BagRecorder(path, storage) as recorder:
             for namespace, (arm, seed) in arms.items():
-                written[namespace] = session.simulate_samples(samples, arm, seed=seed)
-                session.write_samples(recorder, namespace, written[namespace],
-                                      diagnostics_every=samples // 4)
+                written[namespace] = simulate_samples(samples, arm, seed=seed)
+                write_samples(recorder, namespace, written[namespace],
+                              diagnostics_every=samples // 4)
         return written
     plain = path.with_name(path.name + '_plain')
     written = write_bag(plain, storage, arms, samples=samples)
-    writer = Writer(path, version=session.BAG_VERSION,
+    writer = Writer(path, version=BAG_VERSION,
                     storage_plugin=StoragePlugin[storage.upper()])
     writer.set_compression(compression, CompressionFormat.ZSTD)
     with Reader(plain) as reader, writer:
@@ -147,7 +153,7 @@ def test_read_topics_equals_rosbags_reader(tmp_path, storage, compression):
     bag = tmp_path / 'bag'
     write_bag(bag, storage, {'/left': ('left', 1), '': ('right', 2)}, compression, samples=400)
     topics = [f'{ns}/{name}' for ns in ('/left', '') for name in report.ARM_TOPICS]
-    data = session.read_topics(bag, topics + ['/absent'])
+    data = read_topics(bag, topics + ['/absent'])
     assert sorted(data) == sorted(topics)
     received = {topic: ([], []) for topic in topics}
     with Reader(bag) as reader:
@@ -157,7 +163,7 @@ def test_read_topics_equals_rosbags_reader(tmp_path, storage, compression):
             messages.append(STORE.deserialize_cdr(raw, connection.msgtype))
     for topic, (times, messages) in received.items():
         np.testing.assert_array_equal(data[topic].log_time, times)
-        if data[topic].msgtype == session.DIAGNOSTIC_ARRAY:
+        if data[topic].msgtype == DIAGNOSTIC_ARRAY:
             assert data[topic].messages == messages
             continue
         expected = [expected_fields(message) for message in messages]
@@ -212,11 +218,11 @@ def test_report_of_two_arms_writes_figures_and_the_samples(tmp_path, capsys):
 
 def test_missing_topics_are_named_and_the_rest_reported(tmp_path, capsys):
     bag = tmp_path / 'partial'
-    expected = session.simulate_samples(200, 'right', seed=5)
-    with session.BagRecorder(bag, 'sqlite3') as recorder:
-        recorder.add_topic('/joint_states', session.JOINT_STATE)
-        recorder.add_topic('/pose', session.JOINT_STATE)  # the wrong type
-        state = TYPES[session.JOINT_STATE]
+    expected = simulate_samples(200, 'right', seed=5)
+    with BagRecorder(bag, 'sqlite3') as recorder:
+        recorder.add_topic('/joint_states', JOINT_STATE)
+        recorder.add_topic('/pose', JOINT_STATE)  # the wrong type
+        state = TYPES[JOINT_STATE]
         for i, stamp in enumerate(expected.stamp.tolist()):
             message = state(
                 header=TYPES['std_msgs/msg/Header'](
@@ -225,7 +231,7 @@ def test_missing_topics_are_named_and_the_rest_reported(tmp_path, capsys):
                     frame_id='kraft_master_base'),
                 name=list(kinematics.JOINT_NAMES), position=expected.position[i],
                 velocity=expected.velocity[i], effort=expected.effort[i])
-            data = STORE.serialize_cdr(message, session.JOINT_STATE)
+            data = STORE.serialize_cdr(message, JOINT_STATE)
             recorder.write('/joint_states', stamp, data)
         recorder.write('/joint_states', 0, b'\x00\x01\x00\x00garbage')
     out = tmp_path / 'out'
@@ -328,23 +334,23 @@ def test_envelope_keeps_the_extremes_of_each_bucket():
 
 
 def test_recorder_rejects_unknown_topics_and_existing_paths(tmp_path):
-    with session.BagRecorder(tmp_path / 'bag', 'sqlite3') as recorder:
-        recorder.add_topic('/a', session.POSE_STAMPED, [session.qos_profile('best_effort')])
+    with BagRecorder(tmp_path / 'bag', 'sqlite3') as recorder:
+        recorder.add_topic('/a', POSE_STAMPED, [qos_profile('best_effort')])
         with pytest.raises(ValueError, match='/b'):
             recorder.write('/b', 0, b'')
         with pytest.raises(ValueError, match='added twice'):
-            recorder.add_topic('/a', session.POSE_STAMPED)
+            recorder.add_topic('/a', POSE_STAMPED)
         with pytest.raises(ValueError, match='unknown message type'):
             recorder.add_topic('/c', 'no_pkg/msg/Nothing')
-    with pytest.raises(session.SessionError, match='exists'):
-        session.BagRecorder(tmp_path / 'bag', 'mcap')
+    with pytest.raises(SessionError, match='exists'):
+        BagRecorder(tmp_path / 'bag', 'mcap')
     with pytest.raises(ValueError, match='storage'):
-        session.BagRecorder(tmp_path / 'other', 'rosbag1')
+        BagRecorder(tmp_path / 'other', 'rosbag1')
     with pytest.raises(ValueError, match='QoS'):
-        session.qos_profile('sometimes')
+        qos_profile('sometimes')
     with Reader(tmp_path / 'bag') as reader:
         (connection,) = reader.connections
-        assert connection.ext.offered_qos_profiles == [session.qos_profile('best_effort')]
+        assert connection.ext.offered_qos_profiles == [qos_profile('best_effort')]
         assert reader.connections[0].msgcount == 0
 
 
@@ -365,8 +371,8 @@ def test_storage_file_of_a_bag_reads_as_the_bag(tmp_path, capsys):
 @pytest.mark.filterwarnings('error')
 def test_session_without_samples_still_reports(tmp_path, capsys):
     bag = tmp_path / 'empty'
-    with session.BagRecorder(bag, 'mcap') as recorder:
-        recorder.add_topic('/left/joint_states', session.JOINT_STATE)
+    with BagRecorder(bag, 'mcap') as recorder:
+        recorder.add_topic('/left/joint_states', JOINT_STATE)
     calibration = tmp_path / 'left.yaml'
     ArmCalibration.nominal('left').to_yaml(calibration)
     assert report.main([str(bag), '--out', str(tmp_path), '--calibration',
@@ -386,11 +392,11 @@ def status(name, **values):
 
 def diagnostics_message(*statuses):
     """Return the CDR bytes of a DiagnosticArray of `statuses`."""
-    message = TYPES[session.DIAGNOSTIC_ARRAY](
+    message = TYPES[DIAGNOSTIC_ARRAY](
         header=TYPES['std_msgs/msg/Header'](
             stamp=TYPES['builtin_interfaces/msg/Time'](sec=0, nanosec=0), frame_id=''),
         status=list(statuses))
-    return STORE.serialize_cdr(message, session.DIAGNOSTIC_ARRAY)
+    return STORE.serialize_cdr(message, DIAGNOSTIC_ARRAY)
 
 
 def driver_values(errors, late, round_trip_ms):
@@ -404,12 +410,12 @@ def driver_values(errors, late, round_trip_ms):
 
 def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, capsys):
     bag = tmp_path / 'two_arms'
-    with session.BagRecorder(bag, 'mcap') as recorder:
+    with BagRecorder(bag, 'mcap') as recorder:
         for namespace, arm, seed in (('/left', 'left', 1), ('/right', 'right', 2)):
-            session.write_samples(recorder, namespace,
-                                  session.simulate_samples(300, arm, seed=seed),
-                                  diagnostics_every=10_000)
-        recorder.add_topic('/diagnostics', session.DIAGNOSTIC_ARRAY)
+            write_samples(recorder, namespace,
+                          simulate_samples(300, arm, seed=seed),
+                          diagnostics_every=10_000)
+        recorder.add_topic('/diagnostics', DIAGNOSTIC_ARRAY)
         for second in range(1, 6):
             recorder.write('/diagnostics', 1_767_225_600_000_000_000 + second * 10**8,
                            diagnostics_message(
@@ -456,11 +462,11 @@ def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, 
 
 def test_old_relative_diagnostics_are_read_from_the_arms_own_topic(tmp_path):
     bag = tmp_path / 'old'
-    with session.BagRecorder(bag, 'sqlite3') as recorder:
-        session.write_samples(recorder, '/left', session.simulate_samples(2000, 'left', seed=1),
-                              diagnostics_every=500)
-        session.write_samples(recorder, '', session.simulate_samples(2000, 'right', seed=2),
-                              diagnostics_every=250)
+    with BagRecorder(bag, 'sqlite3') as recorder:
+        write_samples(recorder, '/left', simulate_samples(2000, 'left', seed=1),
+                      diagnostics_every=500)
+        write_samples(recorder, '', simulate_samples(2000, 'right', seed=2),
+                      diagnostics_every=250)
     root, left = report.read_arms(bag)
     assert (root.namespace, len(root.diagnostics)) == ('', 8)
     assert (left.namespace, len(left.diagnostics)) == ('/left', 4)

@@ -16,8 +16,10 @@ from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
-from kraft_master_driver.simulation.simulator import (
-    actuators_to_joints, joints_to_actuators, PushOperator, SimulatedKraftMaster, Workspace)
+from kraft_master_driver.simulation.model import (
+    actuators_to_joints, joints_to_actuators, Workspace)
+from kraft_master_driver.simulation.operators import PushOperator
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 import serial

@@ -16,7 +16,8 @@ from driver_harness import DriverProcess, next_domain_id, RosClient, WAIT_S
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.slave_sim import PARAMETERS, SlaveLimits
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster, Workspace
+from kraft_master_driver.simulation.model import Workspace
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy

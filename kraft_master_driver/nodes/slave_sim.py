@@ -29,7 +29,7 @@ from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.driver import TakenByLoopThread
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, run_node, Spec)
-from kraft_master_driver.simulation.simulator import Workspace
+from kraft_master_driver.simulation.model import Workspace
 import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node

@@ -234,7 +234,7 @@ class SimulatedOperator:
         The hand pushes beyond a stop in the coordinate the stop limits (q3 = th2 + th3 for
         the elbow), so the arm rests on the stop itself, not where friction leaves it.
         """
-        from kraft_master_driver.simulation.simulator import joints_to_actuators, Workspace
+        from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
         if self._home is None:
             self._home = Workspace().home()
         known = np.radians(np.array(station.joints_deg, dtype=float))

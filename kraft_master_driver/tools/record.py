@@ -6,7 +6,7 @@ kraft_master_record: record the driver's topics into a rosbag2 directory, withou
 Takes the options of `ros2 bag record` that apply (-o, -s, topic names, -a) and by default
 records the driver's topics of each --namespace (the root one if none is given), with the
 absolute /diagnostics. Topics are subscribed to as their publishers appear, raw and with the
-reliability and durability the publishers offer, and written with session.BagRecorder as
+reliability and durability the publishers offer, and written with BagRecorder as
 rosbag2 Jazzy writes them: receive time as the log time, the publisher's source timestamp as
 the publish time, the offered QoS profiles and the publishers' type hash. A line every
 --status-period seconds says what is recorded and how much; Ctrl-C or SIGTERM closes a
@@ -21,7 +21,8 @@ import sqlite3
 import sys
 import time
 
-from kraft_master_driver.bag import session
+from kraft_master_driver.bag.common import DRIVER_TOPICS, SessionError, typestore
+from kraft_master_driver.bag.recorder import BagRecorder, qos_profile, STORAGES
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -36,7 +37,7 @@ def driver_topics(namespaces):
     topics = {'/diagnostics'}
     for namespace in namespaces:
         prefix = '/' + namespace.strip('/') if namespace.strip('/') else ''
-        topics.update(f'{prefix}/{name}' for name in session.DRIVER_TOPICS)
+        topics.update(f'{prefix}/{name}' for name in DRIVER_TOPICS)
     return sorted(topics)
 
 
@@ -49,7 +50,7 @@ def message_class(msgtype):
 def offered_qos(info):
     """Return the QoS profile a publisher offers, as rosbag2 stores it."""
     qos = info.qos_profile
-    return session.qos_profile(
+    return qos_profile(
         reliability=qos.reliability.name, durability=qos.durability.name,
         history=qos.history.name, depth=qos.depth, deadline_ns=qos.deadline.nanoseconds,
         lifespan_ns=qos.lifespan.nanoseconds, liveliness=qos.liveliness.name,
@@ -95,7 +96,7 @@ class Recorder:
                                                topic not in self.wanted):
                 continue
             infos = self.node.get_publishers_info_by_topic(topic)
-            if not infos or len(types) != 1 or types[0] not in session.typestore().types:
+            if not infos or len(types) != 1 or types[0] not in typestore().types:
                 continue
             self.bag.add_topic(topic, types[0], [offered_qos(info) for info in infos],
                                type_hash(infos))
@@ -149,7 +150,7 @@ def _parser():
                         help="the driver's namespaces, e.g. right left (default: /)")
     parser.add_argument('-o', '--output', metavar='DIR',
                         help='the bag directory to create (default: rosbag2_YYYY_MM_DD-HH_MM_SS)')
-    parser.add_argument('-s', '--storage', choices=session.STORAGES, default='mcap',
+    parser.add_argument('-s', '--storage', choices=STORAGES, default='mcap',
                         help='storage format (default: mcap)')
     parser.add_argument('--status-period', type=float, default=2.0, metavar='S',
                         help='seconds between status lines, 0 for none (default: 2)')
@@ -172,8 +173,8 @@ def main(argv=None):
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda signum, _frame: stop.append(signum))
     try:
-        bag = session.BagRecorder(output, args.storage)
-    except session.SessionError as error:
+        bag = BagRecorder(output, args.storage)
+    except SessionError as error:
         print(f'kraft_master_record: {error}', file=sys.stderr)
         return 1
     context = rclpy.Context()
@@ -202,7 +203,7 @@ def main(argv=None):
     finally:
         try:
             bag.close()
-        except session.SessionError as error:
+        except SessionError as error:
             print(f'kraft_master_record: {error}', file=sys.stderr)
             status = 1
         executor.shutdown()

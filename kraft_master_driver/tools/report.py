@@ -14,7 +14,7 @@ sample: stamp_ns, six positions (rad), six velocities (rad/s), six efforts (N*m)
 
 With --calibration the joint angles and wrist poses are recomputed from the recorded raw
 pots with that calibration and drawn against the recorded ones; the CSV then has recal_
-columns as well. Decoding (session.read_topics) and everything after it work on whole
+columns as well. Decoding (bag/reader.py) and everything after it work on whole
 arrays: a bag of a million samples takes some 15 s (benchmarks/report.py).
 """
 import argparse
@@ -24,7 +24,8 @@ import sys
 import time
 from typing import NamedTuple
 
-from kraft_master_driver.bag import session
+from kraft_master_driver.bag.common import DRIVER_TOPICS, SessionError
+from kraft_master_driver.bag.reader import bag_topics, read_topics
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from matplotlib.figure import Figure
@@ -182,7 +183,7 @@ def assemble(namespace, data, topics, calibration=None):
         if not any(topic in topics for topic in candidates):
             missing.append(' or '.join(candidates))
         for topic in (topic for topic in candidates if topic in topics):
-            expected = session.DRIVER_TOPICS[name]
+            expected = DRIVER_TOPICS[name]
             if topics[topic][0] != expected:
                 notes.append(f'{topic} has type {topics[topic][0]}, expected {expected}; '
                              'ignored')
@@ -227,19 +228,19 @@ def assemble(namespace, data, topics, calibration=None):
 
 def read_arms(bag, namespaces=None, calibration=None):
     """Read every arm of the bag (or those in `namespaces`); return a list of ArmData."""
-    topics = session.bag_topics(bag)
+    topics = bag_topics(bag)
     found = find_namespaces(topics)
     if namespaces:
         unknown = [ns for ns in namespaces if ns not in found]
         if unknown:
-            raise session.SessionError(
+            raise SessionError(
                 f'{bag}: no driver topics under {", ".join(ns or "/" for ns in unknown)}; '
                 f'the bag has {", ".join(ns or "/" for ns in found) or "none"}')
         found = list(namespaces)
     if not found:
-        raise session.SessionError(
+        raise SessionError(
             f'{bag}: no driver topics ({", ".join(STATE_TOPICS)}) in the bag')
-    data = session.read_topics(bag, sorted({topic for ns in found for topic in arm_topics(ns)}))
+    data = read_topics(bag, sorted({topic for ns in found for topic in arm_topics(ns)}))
     return [assemble(ns, data, topics, calibration) for ns in found]
 
 
@@ -730,7 +731,7 @@ def main(argv=None):
         namespaces = None if not args.arm_namespace else [
             '' if ns.strip('/') == '' else '/' + ns.strip('/') for ns in args.arm_namespace]
         arms = read_arms(args.bag, namespaces, calibration)
-    except (session.SessionError, CalibrationError) as error:
+    except (SessionError, CalibrationError) as error:
         print(f'kraft_master_report: {error}', file=sys.stderr)
         return 1
     lengths = kinematics.LinkLengths(*args.link_lengths) if args.link_lengths else None
