@@ -24,7 +24,7 @@ PASSIVITY ?= off
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
-.PHONY: demo test test-latest lock lint docs doc-figures bench soak venv clean
+.PHONY: demo test test-random test-latest lock lint docs doc-figures bench soak venv clean
 
 # Everything `make demo` and `make test` install, without running either.
 venv: $(DEVELOPMENT)
@@ -64,6 +64,10 @@ demo: $(RUNTIME)
 
 test: $(DEVELOPMENT)
 	$(VPY) -m pytest -q
+
+# The whole suite in a random order (SEED=N repeats the order a run printed).
+test-random: $(DEVELOPMENT)
+	$(VPY) -m pytest -p randomly $(if $(SEED),--randomly-seed=$(SEED))
 
 # The whole suite on the newest release of everything, in a venv of its own (.venv-latest/).
 test-latest:
