@@ -28,9 +28,9 @@ from kraft_master_driver.link.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
 from kraft_master_driver.nodes.parameters import (
     check_value, declare_parameters, ParameterError, run_node, Spec)
+from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, TakenByLoopThread
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import CallbackGroup
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -38,7 +38,6 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 SIM_PORT = 'sim'
-GIL_SWITCH_INTERVAL_S = 0.0002
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 POT_NAMES = [f'pot{i}' for i in range(1, 7)]
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
@@ -681,29 +680,8 @@ class KraftMasterNode(Node):
             self.simulator.stop()
 
 
-class TakenByLoopThread(CallbackGroup):
-    """
-    A callback group the executor never waits on: the loop thread takes its messages.
-
-    A wrench is then read in the cycle that uses it, and the executor thread does not compete
-    with the loop for the interpreter lock on every message (about 0.3 ms each, measured).
-    """
-
-    def can_execute(self, entity):
-        """Never: the executor leaves these entities alone."""
-        return False
-
-    def beginning_execution(self, entity):
-        """Never: the executor leaves these entities alone."""
-        return False
-
-    def ending_execution(self, entity):
-        """Nothing to release."""
-
-
 def main(args=None):
     """Run the driver until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
-    # The loop thread must get the GIL soon after it wakes, not up to 5 ms (the default) later.
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     return run_node(KraftMasterNode, 'kraft_master_node', __doc__.strip().splitlines()[0],
                     PARAMETERS, args)
