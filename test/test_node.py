@@ -232,9 +232,9 @@ def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
 def test_a_shutdown_that_hangs_still_ends_the_process():
     # As if a DDS teardown never returned: the process ends after SHUTDOWN_LIMIT_S, saying so.
     script = ('import sys, time\n'
-              'from kraft_master_driver import parameters\n'
-              'parameters.SHUTDOWN_LIMIT_S = 0.2\n'
-              'parameters._exit_if_stuck("kraft_master_node", 0)\n'
+              'from kraft_master_driver.nodes import lifecycle\n'
+              'lifecycle.SHUTDOWN_LIMIT_S = 0.2\n'
+              'lifecycle._exit_if_stuck("kraft_master_node", 0)\n'
               'time.sleep(60)\n')
     result = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                             timeout=50)

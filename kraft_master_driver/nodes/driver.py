@@ -26,8 +26,9 @@ from kraft_master_driver.link import cdr
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import (
     CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, ERROR_KINDS)
+from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
-    check_value, declare_parameters, ParameterError, run_node, Spec)
+    check_value, declare_parameters, ParameterError, Spec)
 from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, TakenByLoopThread
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
