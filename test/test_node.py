@@ -470,8 +470,8 @@ def test_bad_params_file_prints_one_line_and_exits_1(install_prefix, tmp_path, c
     assert fragment in output
 
 
-@pytest.mark.parametrize('name, table', [('kraft_master_node', 'node'),
-                                         ('kraft_master_slave_sim', 'slave_sim')])
+@pytest.mark.parametrize('name, table', [('kraft_master_node', 'nodes.driver_parameters'),
+                                         ('kraft_master_slave_sim', 'nodes.slave_sim')])
 def test_help_prints_usage_and_starts_nothing(install_prefix, name, table):
     parameters = importlib.import_module(f'kraft_master_driver.{table}').PARAMETERS
     result = subprocess.run([str(executable(install_prefix, name)), '--help'],

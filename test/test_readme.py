@@ -4,7 +4,7 @@
 import re
 
 from driver_harness import REPO
-from kraft_master_driver.nodes.driver import PARAMETERS
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.simulator import OPERATORS
 import pytest
 
