@@ -7,6 +7,8 @@ The timing rules run on a fake clock against a scripted device that answers each
 as told: a reply, a late reply, a timeout or an exception. The rest runs the real KmcDevice
 against the simulated hand controller on a pseudo-terminal.
 """
+import subprocess
+import sys
 import threading
 import time
 
@@ -387,3 +389,8 @@ def test_on_the_simulator_an_exception_in_a_cycle_sends_zero_torques():
     assert inner.count(0) == 1 + loop.device.stats['timeouts']
     assert inner.count(AXIS1_COUNTS) == loop.statistics.frames - 1
     assert commands[-1] == (0,) * 5
+
+
+def test_the_loop_imports_no_rclpy():
+    code = 'import sys, kraft_master_driver.core.control_loop; sys.exit("rclpy" in sys.modules)'
+    assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0

@@ -1,6 +1,9 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """Tests of the driver's diagnostics as text, from its parts' figures, without ROS."""
+import subprocess
+import sys
+
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.loop_statistics import LoopStatistics
 from kraft_master_driver.core.passivity import MasterPort
@@ -109,3 +112,8 @@ def test_the_readings_are_only_read():
     driver_diagnostics(given)
     assert (given.statistics.frames, given.master_port.energy_out,
             dict(given.device_stats)) == before
+
+
+def test_the_diagnostics_import_no_rclpy():
+    code = 'import sys, kraft_master_driver.nodes.driver_diagnostics; sys.exit("rclpy" in sys.modules)'
+    assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
