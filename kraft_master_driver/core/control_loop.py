@@ -66,7 +66,7 @@ class ControlLoop:
 
     def __init__(self, device, force, publish, *, calibration, arm, lengths, velocity,
                  master_port, log, rate_hz, take_inputs=lambda: None, publish_decimation=1,
-                 priority=0, statistics=None, clock=SystemClock, keep_running=lambda: True):
+                 priority=0, clock=SystemClock, keep_running=lambda: True):
         """Wire the parts together; nothing runs until run()."""
         self.device = device
         self.force = force
@@ -81,7 +81,7 @@ class ControlLoop:
         self.take_inputs = take_inputs
         self.publish_decimation = publish_decimation
         self.priority = priority
-        self.statistics = LoopStatistics() if statistics is None else statistics
+        self.statistics = LoopStatistics()
         self.clock = clock
         self.keep_running = keep_running
         self.scheduler = 'normal'
@@ -93,7 +93,8 @@ class ControlLoop:
         self._running = True
         self._last_force_state = None
         self._replies_missing = 0
-        # Failed opens at which a down link is reported next (the first is reported at once).
+        # Failed opens at which a down link is reported next; a link down from the start is
+        # reported by the owner as it starts the loop.
         self._link_report_at = 0 if device.link_up else 2
         self._failed_opens_when_up = 0
 
