@@ -115,5 +115,6 @@ def test_the_readings_are_only_read():
 
 
 def test_the_diagnostics_import_no_rclpy():
-    code = 'import sys, kraft_master_driver.nodes.driver_diagnostics; sys.exit("rclpy" in sys.modules)'
+    code = ('import sys, kraft_master_driver.nodes.driver_diagnostics; '
+            'sys.exit("rclpy" in sys.modules)')
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0

@@ -66,7 +66,7 @@ def refusal(call, *args):
     return message
 
 
-# -- values --------------------------------------------------------------------------------------
+# -- values ------------------------------------------------------------------------------------
 
 
 def test_a_value_in_range_is_returned():
@@ -123,7 +123,7 @@ def test_the_descriptor_carries_the_range_the_choices_and_read_only():
         '4 values, each within 0.001..2')
 
 
-# -- a node's parameters ---------------------------------------------------------------------------
+# -- a node's parameters -----------------------------------------------------------------------
 
 
 def test_defaults_are_declared_when_nothing_is_given(make_node):
@@ -207,7 +207,7 @@ def test_integer_lists_become_double_lists_at_run_time(make_node):
     assert node.get_parameter('lengths').value == [1.0, 2.0, 1.0, 2.0]
 
 
-# -- params files ----------------------------------------------------------------------------------
+# -- params files ------------------------------------------------------------------------------
 
 
 def write(tmp_path, text):
@@ -218,7 +218,7 @@ def write(tmp_path, text):
 
 def test_a_params_file_names_its_nodes_and_lines(tmp_path):
     path = write(tmp_path, '/**:\n  ros__parameters:\n    baud: 9600\n'
-                           'right:\n  kraft_master_node:\n    ros__parameters:\n      arm: right\n')
+                 'right:\n  kraft_master_node:\n    ros__parameters:\n      arm: right\n')
     params_file = read_params_file(path)
     assert params_file.nodes == (('/**', 2), ('/right/kraft_master_node', 6))
 
@@ -281,7 +281,7 @@ def test_a_missing_params_file_is_refused_in_one_line(tmp_path):
         f'{path}: cannot read the params file: No such file or directory')
 
 
-# -- --help --------------------------------------------------------------------------------------
+# -- --help ------------------------------------------------------------------------------------
 
 
 def test_usage_lists_every_parameter_with_its_default_wrapped_at_99_columns():
