@@ -34,15 +34,16 @@ class StateTopics:
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
         quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        # Diagnostics go where diagnostic_updater publishes them, whatever the namespace.
-        # Energy in, out and dissipated at the master port (J), each stamped when sent.
-        (self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.diagnostics,
-         self.energy_pub) = (
+        (self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.energy_pub,
+         self.diagnostics) = (
             node.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
-            for msg_type, topic in ((JointState, 'joint_states'), (PoseStamped, 'pose'),
-                                    (JointState, 'pots'), (TwistStamped, 'rate_command'),
-                                    (DiagnosticArray, '/diagnostics'),
-                                    (Vector3Stamped, 'master_energy')))
+            for msg_type, topic in (
+                (JointState, 'joint_states'), (PoseStamped, 'pose'), (JointState, 'pots'),
+                (TwistStamped, 'rate_command'),
+                # Energy in, out and dissipated at the master port (J), stamped when sent.
+                (Vector3Stamped, 'master_energy'),
+                # Where diagnostic_updater publishes them, whatever the namespace.
+                (DiagnosticArray, '/diagnostics')))
         # The messages' layout, once; each cycle packs only its values.
         base = config['base_frame']
         self._joint_cdr = cdr.JointStateEncoder(base, joint_names, (6, 6, 6))
