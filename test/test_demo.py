@@ -18,7 +18,7 @@ import threading
 from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.nodes.driver import PARAMETERS as DRIVER_PARAMETERS
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS
 import numpy as np
 import pytest

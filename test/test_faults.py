@@ -40,7 +40,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import (
     DriverProcess, installed_env, next_domain_id, REPO, wait_for, WAIT_S)
 from geometry_msgs.msg import WrenchStamped
-from kraft_master_driver.nodes.driver import PARAMETERS
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import pytest
 from rcl_interfaces.msg import Parameter as ParameterMsg

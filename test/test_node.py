@@ -232,9 +232,9 @@ def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
 def test_a_shutdown_that_hangs_still_ends_the_process():
     # As if a DDS teardown never returned: the process ends after SHUTDOWN_LIMIT_S, saying so.
     script = ('import sys, time\n'
-              'from kraft_master_driver.nodes import parameters\n'
-              'parameters.SHUTDOWN_LIMIT_S = 0.2\n'
-              'parameters._exit_if_stuck("kraft_master_node", 0)\n'
+              'from kraft_master_driver.nodes import lifecycle\n'
+              'lifecycle.SHUTDOWN_LIMIT_S = 0.2\n'
+              'lifecycle._exit_if_stuck("kraft_master_node", 0)\n'
               'time.sleep(60)\n')
     result = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                             timeout=50)
@@ -470,7 +470,7 @@ def test_bad_params_file_prints_one_line_and_exits_1(install_prefix, tmp_path, c
     assert fragment in output
 
 
-@pytest.mark.parametrize('name, table', [('kraft_master_node', 'nodes.driver'),
+@pytest.mark.parametrize('name, table', [('kraft_master_node', 'nodes.driver_parameters'),
                                          ('kraft_master_slave_sim', 'nodes.slave_sim')])
 def test_help_prints_usage_and_starts_nothing(install_prefix, name, table):
     parameters = importlib.import_module(f'kraft_master_driver.{table}').PARAMETERS

@@ -8,7 +8,7 @@ import shlex
 
 from driver_harness import DriverProcess, next_domain_id, PACKAGE, REPO, RosClient
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.nodes.driver import PARAMETERS
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names, main, package_urdf
 import numpy as np

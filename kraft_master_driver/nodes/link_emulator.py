@@ -26,9 +26,10 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core.delay_line import DelayLine, LinkModel
-from kraft_master_driver.nodes.driver import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
-    declare_parameters, ParameterError, run_node, Spec)
+    declare_parameters, ParameterError, Spec)
+from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node

@@ -26,9 +26,10 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchS
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.passivity import LinkMonitor, SlavePort
 from kraft_master_driver.link import cdr
-from kraft_master_driver.nodes.driver import TakenByLoopThread
+from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
-    declare_parameters, ParameterError, run_node, Spec)
+    declare_parameters, ParameterError, Spec)
+from kraft_master_driver.nodes.ros_helpers import TakenByLoopThread
 from kraft_master_driver.simulation.model import Workspace
 import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks

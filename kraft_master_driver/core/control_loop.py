@@ -1,0 +1,262 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The driver's control loop, without ROS: one device cycle per period.
+
+Each cycle reads the pot frame that answers the last command, estimates the arm's state from
+it (joint angles, velocity, wrist pose, Jacobian), takes the inputs that came (wrenches), works
+out the torques and sends them at the cycle's deadline, and hands every publish_decimation-th
+frame to `publish`. A cycle that ends after its deadline sends at once and skips the whole
+periods it cannot catch up. On every doubt the torques are zero: no reply, or an exception in
+a cycle.
+
+The hot path works in plain floats with its work inlined: at 1 kHz a chain of small numpy
+operations costs more than it saves (benchmarks/loop.py measures the loop).
+"""
+import operator
+import os
+import time
+from typing import NamedTuple
+
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_reflection import STALE
+from kraft_master_driver.core.loop_statistics import LoopStatistics
+import numpy as np
+
+ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
+
+
+class Estimate(NamedTuple):
+    """
+    What one pot frame tells, in plain floats.
+
+    theta and velocity (6 each), pose (0T6 row by row, 16), its rotation (3 rows of 3) and
+    the Jacobian (6 rows of 6).
+    """
+
+    theta: list
+    velocity: list
+    pose: tuple
+    rotation: tuple
+    jacobian: list
+
+
+class SystemClock:
+    """The clocks the loop runs on: monotonic time, the thread's CPU time, and sleep."""
+
+    monotonic_ns = staticmethod(time.monotonic_ns)
+    thread_time_ns = staticmethod(time.thread_time_ns)
+    sleep = staticmethod(time.sleep)
+
+
+class ControlLoop:
+    """
+    Paces a device's cycles: command out at each deadline, reply in, state handed on.
+
+    device: a link.device.KmcDevice (send, receive, close, link_up, stats, last_error, port,
+    reply_timeout). force: the core.force_reflection.ForceReflection that turns wrenches into
+    torques. publish(result, estimate): called with a device CycleResult and its Estimate.
+    take_inputs(): called before each send, to hand the wrenches that came to `force`.
+    log: a logger with info, warning and error(message, throttle_duration_sec=...), as an
+    rclpy logger. clock: SystemClock, or a stand-in with the same three functions.
+
+    run() cycles in the calling thread until stop() is called or keep_running() is false.
+    centre (a 4x4 0T6 array, or None) and publish_decimation may be set from other threads.
+    """
+
+    def __init__(self, device, force, publish, *, calibration, arm, lengths, velocity,
+                 master_port, log, rate_hz, take_inputs=lambda: None, publish_decimation=1,
+                 priority=0, clock=SystemClock, keep_running=lambda: True):
+        """Wire the parts together; nothing runs until run()."""
+        self.device = device
+        self.force = force
+        self.publish = publish
+        self.calibration = calibration
+        self.arm = arm
+        self.lengths = lengths
+        self.velocity = velocity
+        self.master_port = master_port
+        self.log = log
+        self.period_ns = int(1e9 / rate_hz)
+        self.take_inputs = take_inputs
+        self.publish_decimation = publish_decimation
+        self.priority = priority
+        self.statistics = LoopStatistics()
+        self.clock = clock
+        self.keep_running = keep_running
+        self.scheduler = 'normal'
+        self.centre = None
+        self.output = None  # the TorqueOutput of the last send, None without an estimate
+        self.pose_entries = None  # 0T6 of the newest frame, 16 floats row by row
+        self.cartesian_velocity = None
+        self._theta = None  # joint angles of the last frame, for the master port's work
+        self._running = True
+        self._last_force_state = None
+        self._replies_missing = 0
+        # Failed opens at which a down link is reported next; a link down from the start is
+        # reported by the owner as it starts the loop.
+        self._link_report_at = 0 if device.link_up else 2
+        self._failed_opens_when_up = 0
+
+    def stop(self):
+        """Make run() return after the cycle under way."""
+        self._running = False
+
+    def pose(self):
+        """Return the newest wrist pose 0T6 as a new 4x4 array, None before the first frame."""
+        entries = self.pose_entries
+        return None if entries is None else np.array(entries).reshape(4, 4)
+
+    def link_state(self):
+        """Return what the loop waits for and why while the link is down."""
+        reason = self.device.last_error.removeprefix(f'{self.device.port}: ')
+        if self.statistics.frames:
+            return f'link down: {reason}; reconnecting'
+        return f'waiting for the device: {reason}'
+
+    def run(self):
+        """Run the loop at its priority; however it ends, zero the torques and close."""
+        self._raise_priority()
+        try:
+            self._cycle_until_stopped()
+        finally:
+            self.device.close()
+
+    def _raise_priority(self):
+        """Give this thread real-time priority if asked and allowed; say what happened."""
+        priority = self.priority
+        if not priority:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as error:
+            self.scheduler = f'normal ({error})'
+            self.log.warning(
+                f'loop_priority {priority}: real-time scheduling refused ({error}); the loop '
+                'runs at normal priority (allow it with an rtprio limit or CAP_SYS_NICE, or '
+                'set loop_priority 0 to silence this)')
+            return
+        self.scheduler = f'SCHED_FIFO {priority}'
+
+    def _cycle_until_stopped(self):
+        """
+        Pace the device cycles: command out at each deadline, reply in, state published.
+
+        A late cycle sends its next command as soon as the reply is estimated and publishes
+        while that command is on the wire, so a wire-limited link is never idle for the
+        publishing.
+        """
+        period_ns = self.period_ns
+        clock = self.clock
+        cpu = clock.thread_time_ns
+        monotonic_ns = clock.monotonic_ns
+        statistics = self.statistics
+        device = self.device
+        deadline = monotonic_ns()
+        statistics.record_start(deadline)
+        sent = self._send_torques(None)
+        while self._running and self.keep_running():
+            try:
+                c0 = cpu()
+                result = device.receive() if sent else None
+                c1 = cpu()
+                estimate = None
+                if result is None:
+                    self.velocity.reset()
+                    self._theta = None
+                    self._warn_no_reply()
+                else:
+                    if self._replies_missing:
+                        self._replies_missing = 0
+                        self._link_report_at = 0
+                        self._failed_opens_when_up = device.stats['failed_opens']
+                        self.log.info('the device answers again', throttle_duration_sec=1.0)
+                    statistics.round_trips.add(int(result.round_trip_s * 1e9))
+                    estimate = self._estimate(result)
+                statistics.add_cpu(link=c1 - c0, kinematics=cpu() - c1)
+                deadline += period_ns
+                now = monotonic_ns()
+                late = now >= deadline
+                if late:
+                    # Run at once to catch up; skip whole periods that cannot be caught up.
+                    statistics.late += 1
+                    skipped = (now - deadline) // period_ns
+                    statistics.missed += skipped
+                    deadline += skipped * period_ns
+                    statistics.record_start(now)
+                    sent = self._send_torques(estimate)
+                if estimate is not None and statistics.frames % self.publish_decimation == 0:
+                    c2 = cpu()
+                    self.publish(result, estimate)
+                    statistics.published += 1
+                    statistics.add_cpu(publish=cpu() - c2)
+                if not late:
+                    clock.sleep(max(0, deadline - monotonic_ns()) / 1e9)
+                    statistics.record_start(monotonic_ns())
+                    sent = self._send_torques(estimate)
+            except Exception as error:  # noqa: B902 - any fault must end in zero torque
+                if not self._running or not self.keep_running():
+                    break
+                sent = device.send(ZERO_TORQUES)
+                statistics.internal_errors += 1
+                self.log.error(f'cycle failed, torques zeroed: {error!r}',
+                               throttle_duration_sec=1.0)
+                clock.sleep(period_ns / 1e9)  # no busy loop at real-time priority if it recurs
+                deadline = monotonic_ns()
+
+    def _send_torques(self, estimate):
+        """Take the inputs that came, work out the torques and send them; True if sent."""
+        cpu = self.clock.thread_time_ns
+        c0 = cpu()
+        self.take_inputs()
+        output = None
+        if estimate is None:
+            self.master_port.idle(self.clock.monotonic_ns())
+        else:
+            centre = self.centre
+            output = self.force.compute(
+                estimate.rotation, estimate.jacobian, self.clock.monotonic_ns(),
+                pose=None if centre is None else self.pose(), centre=centre,
+                cartesian_velocity=self.cartesian_velocity, port=self.master_port)
+            if output.state == STALE and self._last_force_state != STALE:
+                self.log.warning(
+                    f'no wrench for {self.force.wrench_timeout:g} s (wrench_timeout): '
+                    'torques zeroed', throttle_duration_sec=1.0)
+            self._last_force_state = output.state
+        self.output = output
+        c1 = cpu()
+        sent = self.device.send(ZERO_TORQUES if output is None else output.actuator)
+        self.statistics.add_cpu(kinematics=c1 - c0, link=cpu() - c1)
+        return sent
+
+    def _estimate(self, result):
+        """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
+        theta = self.calibration.frame_to_joints(result.frame.pots)
+        pose, jacobian = kinematics.forward_and_jacobian_entries(theta, self.arm, self.lengths)
+        previous, self._theta = self._theta, theta
+        velocity = self.velocity.update(theta, result.receive_ns)
+        jacobian = [jacobian[row:row + 6] for row in range(0, 36, 6)]
+        self.cartesian_velocity = [sum(map(operator.mul, row, velocity)) for row in jacobian]
+        if previous is not None:
+            step = [now - before for now, before in zip(theta, previous)]
+            self.master_port.moved([sum(map(operator.mul, row, step)) for row in jacobian])
+        self.pose_entries = pose
+        self.statistics.frames += 1
+        return Estimate(theta, velocity, pose, (pose[0:3], pose[4:7], pose[8:11]), jacobian)
+
+    def _warn_no_reply(self):
+        """Say why this cycle got no pot frame; its torques, and the next cycle's, are zero."""
+        self._replies_missing += 1
+        device = self.device
+        if device.link_up:
+            self.log.warning(
+                f'no reply within reply_timeout {device.reply_timeout:g} s '
+                f'({self._replies_missing} in a row): torques zeroed', throttle_duration_sec=1.0)
+            return
+        # Reported at the fault, then after 1, 2, 4, 8... failed reopens: less often as the
+        # backoff grows.
+        attempts = device.stats['failed_opens'] - self._failed_opens_when_up
+        if attempts >= self._link_report_at:
+            self._link_report_at = max(2 * attempts, 1)
+            tried = f' ({attempts} attempts)' if attempts else ''
+            self.log.warning(f'{self.link_state()}{tried}: torques zero')

@@ -1,0 +1,88 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The parameters of kraft_master_node: name, default, description with units, range."""
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.link.protocol import CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE
+from kraft_master_driver.nodes.parameters import Spec
+
+# The port that starts the built-in simulated hand controller.
+SIM_PORT = 'sim'
+
+_NOMINAL = ArmCalibration.nominal('right').to_parameters()['calibration']
+
+PARAMETERS = {
+    'arm': Spec('right', 'Which unit: right or left (the left arm mirrors L3).',
+                choices=kinematics.ARMS),
+    'port': Spec('/dev/ttyUSB0', 'Serial device path or pyserial URL of the KMC 9100; "sim" '
+                 'starts the built-in simulated hand controller on a pseudo-terminal.'),
+    'baud': Spec(1_000_000, 'Serial baud rate (bit/s).', low=1200, high=12_000_000),
+    'codec': Spec('kraft-default', 'Frame codec of the serial link.', choices=tuple(CODECS)),
+    'low_latency': Spec(False, 'Put the serial port into the kernel low-latency mode.'),
+    'reply_timeout': Spec(0.01, 'Time to wait for the pot frame of a cycle (s).',
+                          low=0.0005, high=1.0),
+    'loop_rate_hz': Spec(1000.0, 'Rate of the device cycle (Hz).', low=1.0, high=5000.0),
+    'loop_priority': Spec(
+        50, 'SCHED_FIFO priority of the loop thread (1-99; 0 = the normal scheduler). Where '
+        'the OS refuses it (no CAP_SYS_NICE or rtprio limit), a warning and the normal one.',
+        low=0, high=99),
+    'publish_decimation': Spec(1, 'Publish state every Nth cycle (1 = every cycle).',
+                               read_only=False, low=1, high=1000),
+    'link_lengths': Spec(list(kinematics.NOMINAL_LENGTHS),
+                         'Link lengths L1, L2, L3, L4 (m); L3 positive for both arms.',
+                         low=0.001, high=2.0, length=4),
+    'calibration.pot_a': Spec(_NOMINAL['pot_a'], 'Pot counts at angle_a, POT1..POT6.',
+                              low=0.0, high=4095.0, length=6),
+    'calibration.pot_b': Spec(_NOMINAL['pot_b'], 'Pot counts at angle_b, POT1..POT6.',
+                              low=0.0, high=4095.0, length=6),
+    'calibration.angle_a_deg': Spec(_NOMINAL['angle_a_deg'], 'Angle read at pot_a (deg).',
+                                    low=-360.0, high=360.0, length=6),
+    'calibration.angle_b_deg': Spec(_NOMINAL['angle_b_deg'], 'Angle read at pot_b (deg).',
+                                    low=-360.0, high=360.0, length=6),
+    'torque_scale': Spec([float(x) for x in DEFAULT_TORQUE_SCALE],
+                         'Device command counts per N*m, axes 1..5.',
+                         low=1e-6, high=1e6, length=5),
+    'torque_command_limit': Spec([int(x) for x in DEFAULT_TORQUE_LIMIT],
+                                 'Clamp of the device command, counts, axes 1..5.',
+                                 low=1, high=32767, length=5),
+    'torque_limits': Spec([2.0] * 5, 'Largest actuator torque per axis 1..5 (N*m); above it '
+                          'the whole torque vector is scaled down together.',
+                          read_only=False, low=0.001, high=100.0, length=5),
+    'coupling': Spec('actuator', 'Torque form on channels 2 and 3: "actuator" (elbow motor '
+                     'drives th2 + th3) or "joint".', choices=('actuator', 'joint')),
+    'force_scale': Spec(1.0, 'Scale from task wrench to reflected wrench (1).',
+                        read_only=False, low=0.0, high=10.0),
+    'wrench_timeout': Spec(0.05, 'A wrench older than this gives zero torque (s).',
+                           read_only=False, low=0.001, high=5.0),
+    'max_stamp_skew': Spec(1.0, 'Wrenches stamped further than this from the system clock are '
+                           'rejected (s); an unset stamp (0) is accepted.',
+                           read_only=False, low=0.001, high=1e9),
+    'max_force': Spec(200.0, 'Wrenches with a larger force are rejected (N).',
+                      read_only=False, low=0.0, high=1e4),
+    'max_moment': Spec(20.0, 'Wrenches with a larger moment are rejected (N*m).',
+                       read_only=False, low=0.0, high=1e3),
+    'force_enabled_at_start': Spec(False, 'Force output enabled at start-up; else call '
+                                   'the enable_force service.'),
+    'centre_stiffness': Spec([0.0, 0.0], 'Return-to-centre stiffness: linear (N/m), angular '
+                             '(N*m/rad).', read_only=False, low=0.0, high=1e4, length=2),
+    'centre_damping': Spec([0.0, 0.0], 'Return-to-centre damping: linear (N*s/m), angular '
+                           '(N*m*s/rad).', read_only=False, low=0.0, high=1e3, length=2),
+    'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain).',
+                                 read_only=False),
+    'rate_gain': Spec([1.0, 1.0], 'Rate command gains: linear (1/s), angular (1/s).',
+                      read_only=False, low=0.0, high=100.0, length=2),
+    'velocity_cutoff_hz': Spec(50.0, 'Low-pass cut-off of the joint velocity filter (Hz).',
+                               read_only=False, low=0.1, high=1000.0),
+    'base_frame': Spec('kraft_master_base', 'frame_id of the base frame {0}.'),
+    'wrist_frame': Spec('kraft_master_wrist', 'frame_id of the wrist frame {6}.'),
+    'joint_prefix': Spec('', 'Prefix of the joint names, e.g. "left_" for two arms.'),
+    'sim_operator': Spec('hold', 'Simulated operator hand (port "sim"): hold, sweep, '
+                         'random_walk or push.', choices=('hold', 'sweep', 'random_walk', 'push')),
+    'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
+                             low=0.0, high=100.0),
+    'allow_multiple_wrench_sources': Spec(
+        False, 'Accept wrenches while more than one publisher is matched on wrench; by '
+        'default torques are zero then, as two sources would interleave their forces.'),
+    'passivity': Spec(False, 'Time-domain passivity control of the reflected wrench, fed by '
+                      'the slave_energy topic; false: plain J^T F.', read_only=False),
+}

@@ -1,0 +1,188 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The topics of kraft_master_node: the state it publishes and the inputs its loop takes.
+
+Both handle CDR bytes themselves (link/cdr.py): the loop thread packs and unpacks only values,
+with the messages' layout worked out once.
+"""
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_reflection import rate_command
+from kraft_master_driver.core.passivity import LinkMonitor
+from kraft_master_driver.link import cdr
+from kraft_master_driver.nodes.ros_helpers import TakenByLoopThread
+import numpy as np
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+POT_NAMES = [f'pot{i}' for i in range(1, 7)]
+VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
+
+
+class StateTopics:
+    """The driver's publishers: its state each published cycle, and its diagnostics."""
+
+    def __init__(self, node, config, joint_names, master_port):
+        """Create the publishers on `node`; config is the node's (live) parameter values."""
+        self.config = config
+        self.master_port = master_port
+        state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # No QoS event handlers on the publishers: each one is work for every executor wake-up.
+        quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        (self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.energy_pub,
+         self.diagnostics) = (
+            node.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
+            for msg_type, topic in (
+                (JointState, 'joint_states'), (PoseStamped, 'pose'), (JointState, 'pots'),
+                (TwistStamped, 'rate_command'),
+                # Energy in, out and dissipated at the master port (J), stamped when sent.
+                (Vector3Stamped, 'master_energy'),
+                # Where diagnostic_updater publishes them, whatever the namespace.
+                (DiagnosticArray, '/diagnostics')))
+        # The messages' layout, once; each cycle packs only its values.
+        base = config['base_frame']
+        self._joint_cdr = cdr.JointStateEncoder(base, joint_names, (6, 6, 6))
+        self._pose_cdr = cdr.StampedDoublesEncoder(base, 7)
+        self._pots_cdr = cdr.JointStateEncoder(base, POT_NAMES, (6, 0, 0))
+        self._twist_cdr = cdr.StampedDoublesEncoder(base, 6)
+        self._energy_cdr = cdr.StampedDoublesEncoder(base, 3)
+
+    def publish(self, result, estimate, centre):
+        """Publish one cycle: joint state, pose, pots, energies, rate command if asked."""
+        sec, nanosec = divmod(result.receive_ns, 1_000_000_000)
+        self.joint_pub.publish(self._joint_cdr.encode(
+            sec, nanosec, estimate.theta, estimate.velocity, self._effort(result.commanded_nm)))
+        pose = estimate.pose
+        self.pose_pub.publish(self._pose_cdr.encode(
+            sec, nanosec, (pose[3], pose[7], pose[11],
+                           *kinematics.rotation_to_quaternion(estimate.rotation))))
+        self.pots_pub.publish(self._pots_cdr.encode(
+            sec, nanosec, [float(count) for count in result.frame.pots], (), ()))
+        port = self.master_port
+        self.energy_pub.publish(self._energy_cdr.encode(
+            sec, nanosec, (port.energy_in, port.energy_out, port.dissipated)))
+        if self.config['rate_command_enabled'] and centre is not None:
+            linear, angular = rate_command(np.array(pose).reshape(4, 4), centre,
+                                           *self.config['rate_gain'])
+            self.rate_pub.publish(self._twist_cdr.encode(
+                sec, nanosec, linear.tolist() + angular.tolist()))
+
+    def _effort(self, actuator_nm):
+        """Joint torques th1..th6 (N*m) that the torques sent amount to; th6 has no motor."""
+        torques = [*actuator_nm, 0.0]
+        if self.config['coupling'] == 'actuator':
+            torques[1] += torques[2]  # kinematics.joint_torques_from_actuator, inlined
+        return torques
+
+
+class InputTopics:
+    """
+    The wrench and slave_energy subscriptions, taken by the loop thread, never the executor.
+
+    take() hands every wrench that came to the force reflection and every slave energy to the
+    master port. While more than one publisher is matched on wrench (and
+    allow_multiple_wrench_sources is false) the wrenches are dropped and the force reflection
+    holds none: zero torque.
+    """
+
+    def __init__(self, node, config, force, master_port, frames):
+        """Subscribe on `node`; frames maps a wrench's frame_id to a force reflection frame."""
+        self.config = config
+        self.force = force
+        self.master_port = master_port
+        self.frames = frames
+        self.log = node.get_logger()
+        self.slave_energy = (0.0, 0.0, 0.0)
+        self.slave_link = LinkMonitor()
+        self.wrench_sources = 0
+        self._wrenches_refused = False
+        self._wrench_sub = node.create_subscription(
+            WrenchStamped, 'wrench', self._on_wrench,
+            # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        # All that came (the values are monotone; each one's delay counts, and one the next
+        # overwrote would count as lost on the link).
+        self._slave_energy_sub = node.create_subscription(
+            Vector3Stamped, 'slave_energy', self._on_slave_energy,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+
+    @property
+    def sources_refused(self):
+        """Whether wrenches are refused now: several publishers matched, and not allowed."""
+        return self.wrench_sources > 1 and not self.config['allow_multiple_wrench_sources']
+
+    def several_sources(self):
+        """Say why wrenches are refused while several publishers are matched."""
+        return (f'{self.wrench_sources} publishers on {self._wrench_sub.topic_name}, only one '
+                'wrench source is allowed (allow_multiple_wrench_sources)')
+
+    def take(self):
+        """Hand every wrench and slave energy that has arrived on, oldest first."""
+        handle = self._wrench_sub.handle
+        with handle:
+            sources = handle.get_publisher_count()
+            refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
+            while (taken := handle.take_message(WrenchStamped, True)) is not None:
+                if not refused:
+                    self._on_wrench(taken[0])
+        if refused:
+            self.force.clear()
+        handle = self._slave_energy_sub.handle
+        with handle:
+            while (taken := handle.take_message(Vector3Stamped, True)) is not None:
+                # Its delay to when DDS received it (system clock), not to this cycle's take.
+                self._on_slave_energy(taken[0],
+                                      taken[1]['received_timestamp'] or time.time_ns())
+        if sources != self.wrench_sources:
+            self.wrench_sources = sources
+            if refused:
+                self.log.warning(f'{self.several_sources()}: torques zeroed')
+            elif self._wrenches_refused:
+                self.log.info(f'{sources} publisher(s) on wrench: wrenches accepted')
+            self._wrenches_refused = refused
+
+    def _on_wrench(self, data):
+        """Check one wrench (CDR bytes) and hand it to the force reflection."""
+        try:
+            sec, nanosec, frame_id, values = cdr.decode_wrench_stamped(data)
+        except ValueError as error:
+            self.force.reject('malformed')
+            self.log.warning(f'wrench rejected, torques zeroed: {error}',
+                             throttle_duration_sec=1.0)
+            return
+        frame = self.frames.get(frame_id)
+        tag = sec * 1_000_000_000 + nanosec
+        skew = time.time_ns() - tag
+        if tag and abs(skew) > self.config['max_stamp_skew'] * 1e9:
+            self.force.reject('bad_timestamp', tag)
+            self.log.warning(
+                f'wrench rejected, torques zeroed: its stamp is {skew / 1e9:+.3f} s off this '
+                f'clock (max_stamp_skew {self.config["max_stamp_skew"]:g} s)',
+                throttle_duration_sec=1.0)
+            return
+        accepted, reason = self.force.submit(values, frame, time.monotonic_ns(), tag)
+        if frame is None:
+            reason = (f'frame_id {frame_id!r} is not one of '
+                      f'{" or ".join(repr(f) for f in self.frames)}')
+        if not accepted:
+            self.log.warning(f'wrench rejected, torques zeroed: {reason}',
+                             throttle_duration_sec=1.0)
+
+    def _on_slave_energy(self, data, received_ns):
+        try:
+            sec, nanosec, _, energies = VECTOR3_STAMPED.decode(data)
+        except ValueError as error:
+            self.log.warning(f'slave_energy ignored: {error}', throttle_duration_sec=1.0)
+            return
+        self.master_port.credit(energies[0])
+        self.slave_energy = tuple(energies)
+        self.slave_link.add(sec * 1_000_000_000 + nanosec, received_ns)

@@ -1,0 +1,113 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The life of a node's process: command line, start-up, spin, shutdown, exit code.
+
+run_node() answers --help, checks the params files before rcl reads them (one line naming the
+file, the line and the fault), turns every refusal into one line on stderr and exit code 1, and
+ends the process if its shutdown hangs.
+"""
+import faulthandler
+import gc
+import os
+import re
+import sys
+import threading
+
+from kraft_master_driver.nodes.parameters import ParameterError, read_params_file, usage
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+import rclpy.utilities
+
+SHUTDOWN_LIMIT_S = 10.0
+
+
+def ros_argument_files(argv):
+    """Return the --params-file paths among the --ros-args of a command line."""
+    paths, in_ros_args, arguments = [], False, iter(argv)
+    for argument in arguments:
+        if argument == '--ros-args':
+            in_ros_args = True
+        elif argument == '--':
+            in_ros_args = False
+        elif in_ros_args and argument == '--params-file':
+            paths.append(next(arguments, ''))
+    return paths
+
+
+def _program_arguments(argv):
+    """Return the arguments of a command line that are not ROS arguments."""
+    return rclpy.utilities.remove_ros_args(argv)[1:]
+
+
+def _rcl_reason(error):
+    """Return the message of an rcl start-up error without rcl's source locations."""
+    text = str(error)
+    text = text.split("Couldn't parse params file: ", 1)[-1]
+    return re.sub(r', at [^,]*\.c:\d+', '', text).replace('failed to initialize rcl: ', '')
+
+
+def run_node(make_node, program, summary, table, args=None):
+    """
+    Spin the node make_node(params_files) returns until Ctrl-C or SIGTERM; return the exit code.
+
+    --help prints the usage and returns 0 without starting anything; a bad params file, an
+    argument that is not a ROS argument, or a bad parameter prints one line and returns 1.
+    """
+    argv = sys.argv if args is None else args
+    own = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    if '-h' in own or '--help' in own:
+        print(usage(program, summary, table))
+        return 0
+    try:
+        params_files = [read_params_file(path) for path in ros_argument_files(argv)]
+        extra = _program_arguments(argv)
+        if extra:
+            raise ParameterError(f'unexpected argument {extra[0]!r}: ROS arguments go after '
+                                 f'--ros-args (see {program} --help)')
+        rclpy.init(args=argv)
+    except ParameterError as error:
+        print(f'{program}: {error}', file=sys.stderr)
+        return 1
+    except _rclpy.RCLError as error:
+        print(f'{program}: cannot start: {_rcl_reason(error)}', file=sys.stderr)
+        return 1
+    node = None
+    exit_code = 0
+    try:
+        node = make_node(params_files)
+        # The set-up's objects live as long as the process: leave them out of garbage
+        # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
+        gc.freeze()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RuntimeError:
+        # A signal can shut the context down while the executor takes a message.
+        if rclpy.ok():
+            raise
+    except ParameterError as error:
+        print(f'{program}: {error}', file=sys.stderr)
+        exit_code = 1
+    finally:
+        watchdog = _exit_if_stuck(program, exit_code)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        watchdog.cancel()
+    return exit_code
+
+
+def _exit_if_stuck(program, exit_code):
+    """Return a started timer that ends the process if its shutdown hangs (DDS teardown can)."""
+    def stuck():
+        print(f'{program}: shutdown did not finish in {SHUTDOWN_LIMIT_S:g} s; exiting; its '
+              'threads:', file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(all_threads=True)  # where it hangs, for a bug report
+        sys.stdout.flush()
+        os._exit(exit_code)
+    timer = threading.Timer(SHUTDOWN_LIMIT_S, stuck)
+    timer.daemon = True
+    timer.start()
+    return timer
