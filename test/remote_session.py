@@ -32,6 +32,7 @@ import time
 from driver_harness import executable, installed_env, next_domain_id
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 from netns import TwoHosts
@@ -49,6 +50,8 @@ RAMP, HOLD, WINDOW, SETTLE = 1.0, 5.0, 2.0, 2.0  # s
 SLAVE = {'mass': 1.0, 'max_acceleration': 100.0}
 # Pose and master_energy at 500 Hz: half the messages for the relay (one Python process).
 PUBLISH_DECIMATION = 2
+# The driver admits wrenches this much older than the emulated one-way delay.
+MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 
 
 def actuator_target(depth):
@@ -140,6 +143,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
     slave_domain = master_domain if direct else next_domain_id()
     wall_point = HOME - WALL_BELOW * NORMAL
     on = 'true' if passivity else 'false'
+    one_way = round_trip_ms / 2e3
     try:
         with TwoHosts() as (master_host, slave_host):
             with master_host.entered():
@@ -147,8 +151,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
             start(master_host, prefix, master_domain, 'kraft_master_node', [
                 ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
                 ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
-                ('passivity', on)])
-            one_way = round_trip_ms / 2e3
+                ('passivity', on), ('max_wrench_age', MAX_WRENCH_AGE_S + one_way)])
             if not direct:
                 start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
                     ('slave_domain_id', slave_domain), ('seed', seed),

@@ -233,6 +233,54 @@ def test_wrench_timeout_change_applies_at_once():
     assert fr.compute(rotation, jac, T0 + 80_000_000).state == 'active'
 
 
+MAX_AGE_NS = 100_000_000  # the default max_wrench_age, 0.1 s
+
+
+def test_wrench_older_than_max_wrench_age_by_its_stamp_is_refused():
+    theta = random_theta(np.random.default_rng(21))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    accepted, reason = fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=MAX_AGE_NS + 1)
+    assert not accepted
+    assert reason == 'too_old: its stamp is 0.100 s old > max_wrench_age = 0.1 s'
+    assert_zero(fr.compute(rotation, jac, T0), 'rejected')
+    assert fr.counters['rejected_too_old'] == 1
+    assert fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=MAX_AGE_NS) == (True, '')
+    assert fr.compute(rotation, jac, T0).state == 'active'
+
+
+def test_wrench_gives_zero_torque_once_its_stamp_is_older_than_max_wrench_age():
+    theta = random_theta(np.random.default_rng(22))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection(wrench_timeout=5.0)  # the age by its stamp, not the time since receipt
+    age = 70_000_000
+    fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=age)
+    assert fr.compute(rotation, jac, T0 + MAX_AGE_NS - age).state == 'active'
+    for step in range(1, 50):
+        assert_zero(fr.compute(rotation, jac, T0 + MAX_AGE_NS - age + step), 'stale')
+    assert fr.counters['age_expiries'] == 1
+    assert fr.counters['watchdog_trips'] == 0
+
+
+def test_unstamped_wrench_is_held_for_wrench_timeout_only():
+    theta = random_theta(np.random.default_rng(23))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection(wrench_timeout=0.5)
+    fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=None)
+    assert fr.compute(rotation, jac, T0 + 4 * MAX_AGE_NS).state == 'active'
+    assert fr.counters['age_expiries'] == 0
+
+
+def test_max_wrench_age_change_applies_to_the_next_wrench():
+    theta = random_theta(np.random.default_rng(24))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    fr.configure(max_wrench_age=0.3)
+    assert fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=2 * MAX_AGE_NS) == (True, '')
+    assert fr.compute(rotation, jac, T0 + 5_000_000).state == 'active'
+    assert fr.max_wrench_age == 0.3
+
+
 nan, inf = math.nan, math.inf
 
 
@@ -410,7 +458,7 @@ def test_rate_command_non_finite_pose_gives_zero_and_bad_gains_raise():
     ('torque_limits', 3.0), ('torque_limits', (1.0, 1.0, 1.0, 1.0, -2.0)),
     ('coupling', 'both'), ('coupling', None),
     ('wrench_timeout', 0.0), ('wrench_timeout', -0.01), ('wrench_timeout', 6.0),
-    ('wrench_timeout', nan),
+    ('wrench_timeout', nan), ('max_wrench_age', 0.0), ('max_wrench_age', 11.0),
     ('max_force', -1.0), ('max_force', nan), ('max_moment', inf), ('max_moment', None),
     ('centre_stiffness', (1.0,)), ('centre_stiffness', (-1.0, 0.0)),
     ('centre_damping', (nan, 0.0)), ('centre_damping', (0.0, 0.0, 0.0)),
@@ -454,7 +502,7 @@ def test_configure_applies_valid_changes_and_rejects_unknown_names():
 def test_counters_start_at_zero():
     counters = ForceReflection().counters
     assert counters == {
-        'watchdog_trips': 0, 'saturation_events': 0, 'saturated_cycles': 0,
+        'watchdog_trips': 0, 'age_expiries': 0, 'saturation_events': 0, 'saturated_cycles': 0,
         'non_finite_results': 0, **{f'rejected_{key}': 0 for key in REJECTION_REASONS}}
 
 

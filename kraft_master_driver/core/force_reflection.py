@@ -29,10 +29,12 @@ DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE = (
 STATES = (DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE)
 
 REJECTION_REASONS = (
-    'malformed', 'non_finite', 'unknown_frame', 'bad_timestamp', 'force_limit', 'moment_limit')
+    'malformed', 'non_finite', 'unknown_frame', 'bad_timestamp', 'too_old', 'force_limit',
+    'moment_limit')
 
 DRIVEN_AXES = kinematics.DRIVEN_JOINTS
 MAX_WRENCH_TIMEOUT = 5.0
+MAX_WRENCH_AGE = 10.0
 DEFAULT_TORQUE_LIMITS = (2.0,) * DRIVEN_AXES
 
 
@@ -42,13 +44,15 @@ class WrenchInput(NamedTuple):
 
     wrench: (fx, fy, fz, mx, my, mz) in N and N*m, acting at the origin of the wrist {6};
     frame: BASE_FRAME ({0}) or WRIST_FRAME ({6}) for the axes it is expressed in;
-    received_ns: time.monotonic_ns() at receipt; tag: an opaque id passed through.
+    received_ns: time.monotonic_ns() at receipt; tag: an opaque id passed through;
+    expires_ns: when its stamp grows older than max_wrench_age (monotonic), None if unstamped.
     """
 
     wrench: tuple
     frame: str
     received_ns: int
     tag: object = None
+    expires_ns: int = None
 
 
 class Rejection(NamedTuple):
@@ -82,6 +86,7 @@ class Settings(NamedTuple):
     torque_limits: tuple = DEFAULT_TORQUE_LIMITS
     coupling: str = 'actuator'
     wrench_timeout: float = 0.05
+    max_wrench_age: float = 0.1
     max_force: float = 200.0
     max_moment: float = 20.0
     centre_stiffness: tuple = (0.0, 0.0)
@@ -151,6 +156,7 @@ _VALIDATORS = {
     'coupling': partial(_choice, 'coupling', COUPLINGS),
     'wrench_timeout': partial(_real, 'wrench_timeout', upper=MAX_WRENCH_TIMEOUT,
                               lower_open=True),
+    'max_wrench_age': partial(_real, 'max_wrench_age', upper=MAX_WRENCH_AGE, lower_open=True),
     'max_force': partial(_real, 'max_force'),
     'max_moment': partial(_real, 'max_moment'),
     'centre_stiffness': partial(_reals, 'centre_stiffness', length=2),
@@ -184,6 +190,7 @@ class ForceReflection:
     torque_limits = _setting('torque_limits')
     coupling = _setting('coupling')
     wrench_timeout = _setting('wrench_timeout')
+    max_wrench_age = _setting('max_wrench_age')
     max_force = _setting('max_force')
     max_moment = _setting('max_moment')
     centre_stiffness = _setting('centre_stiffness')
@@ -191,27 +198,32 @@ class ForceReflection:
 
     def __init__(self, force_scale=1.0, torque_limits=DEFAULT_TORQUE_LIMITS, coupling='actuator',
                  wrench_timeout=0.05, max_force=200.0, max_moment=20.0,
-                 centre_stiffness=(0.0, 0.0), centre_damping=(0.0, 0.0), enabled=False):
+                 centre_stiffness=(0.0, 0.0), centre_damping=(0.0, 0.0), enabled=False,
+                 max_wrench_age=0.1):
         """
         Validate the settings (ValueError naming the bad one); force output starts disabled.
 
         force_scale (1), torque_limits (5 values, N*m, actuator axes 1..5, > 0),
-        coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]), max_force (N),
+        coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]), max_wrench_age (s, in
+        (0, 10]: the age by its stamp past which a wrench gives zero torque), max_force (N),
         max_moment (N*m), centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad).
         """
         self._write_lock = threading.Lock()
         self._hot = None
         self._latest = None
         self._tripped = None
+        self._expired = None
         self._was_saturated = False
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
         self._watchdog_trips = 0
+        self._age_expiries = 0
         self._saturation_events = 0
         self._saturated_cycles = 0
         self._non_finite_results = 0
         self.configure(
             enabled=enabled, force_scale=force_scale, torque_limits=torque_limits,
-            coupling=coupling, wrench_timeout=wrench_timeout, max_force=max_force,
+            coupling=coupling, wrench_timeout=wrench_timeout, max_wrench_age=max_wrench_age,
+            max_force=max_force,
             max_moment=max_moment, centre_stiffness=centre_stiffness,
             centre_damping=centre_damping)
 
@@ -247,18 +259,27 @@ class ForceReflection:
                                  _six_gains(settings.centre_stiffness),
                                  _six_gains(settings.centre_damping))
 
-    def submit(self, wrench, frame, received_ns, tag=None):
+    def submit(self, wrench, frame, received_ns, tag=None, stamp_age_ns=None):
         """
         Validate and store a task wrench; return (accepted, reason).
 
         wrench: (fx, fy, fz, mx, my, mz), N and N*m; frame: BASE_FRAME or WRIST_FRAME;
-        received_ns: time.monotonic_ns() at receipt. A rejected wrench replaces the current one,
-        so torques are zero until a valid wrench arrives; reason then starts with the key of
-        `rejections` that was counted, and is '' for an accepted wrench.
+        received_ns: time.monotonic_ns() at receipt; stamp_age_ns: its age by its stamp at
+        receipt (None if unstamped). One older than max_wrench_age is rejected, and one
+        accepted gives zero torque once it has grown older. A rejected wrench replaces the
+        current one, so torques are zero until a valid wrench arrives; reason then starts with
+        the key of `rejections` that was counted, and is '' for an accepted wrench.
         """
         key, detail, values = self._check(wrench, frame, received_ns)
+        max_age_ns = round(self._hot.settings.max_wrench_age * 1e9)
+        if key is None and stamp_age_ns is not None and stamp_age_ns > max_age_ns:
+            key, detail = 'too_old', (
+                f'its stamp is {stamp_age_ns / 1e9:.3f} s old '
+                f'> max_wrench_age = {max_age_ns / 1e9:g} s')
         if key is None:
-            self._latest = WrenchInput(values, frame, int(received_ns), tag)
+            expires_ns = (None if stamp_age_ns is None
+                          else int(received_ns) + max_age_ns - int(stamp_age_ns))
+            self._latest = WrenchInput(values, frame, int(received_ns), tag, expires_ns)
             return True, ''
         self.reject(key, tag)
         return False, f'{key}: {detail}'
@@ -302,6 +323,7 @@ class ForceReflection:
         """Return a snapshot of the event counters, flat: name -> count."""
         counters = {
             'watchdog_trips': self._watchdog_trips,
+            'age_expiries': self._age_expiries,
             'saturation_events': self._saturation_events,
             'saturated_cycles': self._saturated_cycles,
             'non_finite_results': self._non_finite_results,
@@ -342,6 +364,11 @@ class ForceReflection:
             if latest is not self._tripped:
                 self._tripped = latest
                 self._watchdog_trips += 1
+            return self._idle(STALE, port, now_ns)
+        if latest.expires_ns is not None and now_ns > latest.expires_ns:
+            if latest is not self._expired:
+                self._expired = latest
+                self._age_expiries += 1
             return self._idle(STALE, port, now_ns)
 
         scale = settings.force_scale

@@ -35,8 +35,8 @@ DIAGNOSTIC_LEVELS = {driver_diagnostics.OK: DiagnosticStatus.OK,
                      driver_diagnostics.WARN: DiagnosticStatus.WARN,
                      driver_diagnostics.ERROR: DiagnosticStatus.ERROR}
 # Parameters settable at run time that the force reflection takes as they are.
-FORCE_SETTINGS = ('force_scale', 'wrench_timeout', 'max_force', 'max_moment', 'torque_limits',
-                  'centre_stiffness', 'centre_damping')
+FORCE_SETTINGS = ('force_scale', 'wrench_timeout', 'max_wrench_age', 'max_force', 'max_moment',
+                  'torque_limits', 'centre_stiffness', 'centre_damping')
 
 
 class KraftMasterNode(Node):
@@ -53,6 +53,7 @@ class KraftMasterNode(Node):
             torque_limits=tuple(self.config['torque_limits']),
             coupling=self.config['coupling'],
             wrench_timeout=self.config['wrench_timeout'],
+            max_wrench_age=self.config['max_wrench_age'],
             max_force=self.config['max_force'], max_moment=self.config['max_moment'],
             centre_stiffness=tuple(self.config['centre_stiffness']),
             centre_damping=tuple(self.config['centre_damping']))

@@ -54,6 +54,9 @@ PARAMETERS = {
                         read_only=False, low=0.0, high=10.0),
     'wrench_timeout': Spec(0.05, 'A wrench older than this gives zero torque (s).',
                            read_only=False, low=0.001, high=5.0),
+    'max_wrench_age': Spec(0.1, 'A wrench whose stamp is older than this gives zero torque '
+                           '(s); across a delayed link, set it above the one-way delay.',
+                           read_only=False, low=0.001, high=10.0),
     'max_stamp_skew': Spec(1.0, 'Wrenches stamped further than this from the system clock are '
                            'rejected (s); an unset stamp (0) is accepted.',
                            read_only=False, low=0.001, high=1e9),

@@ -169,7 +169,8 @@ class InputTopics:
                 f'clock (max_stamp_skew {self.config["max_stamp_skew"]:g} s)',
                 throttle_duration_sec=1.0)
             return
-        accepted, reason = self.force.submit(values, frame, time.monotonic_ns(), tag)
+        accepted, reason = self.force.submit(values, frame, time.monotonic_ns(), tag,
+                                             stamp_age_ns=skew if tag else None)
         if frame is None:
             reason = (f'frame_id {frame_id!r} is not one of '
                       f'{" or ".join(repr(f) for f in self.frames)}')

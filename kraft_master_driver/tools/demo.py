@@ -24,6 +24,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -38,6 +39,7 @@ DRIVER = [sys.executable, '-m', 'kraft_master_driver.nodes.driver', '--ros-args'
           '-p', 'force_enabled_at_start:=true']
 SLAVE = [sys.executable, '-m', 'kraft_master_driver.nodes.slave_sim']
 DRIVER_NAME = 'kraft_master_node'
+MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
 START_TIMEOUT = 60.0  # s for the driver and the slave to come up
 REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
@@ -243,6 +245,8 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
             screen.show(log.new_lines(), ['the simulator did not start'])
             return 1
         passive = ['-p', f'passivity:={str(passivity).lower()}']
+        # The wrench reaches the driver one way's delay after its stamp: admit that much more.
+        wrench_age = ['-p', f'max_wrench_age:={MAX_WRENCH_AGE_S + delay_ms / 2e3}']
         slave_child = child
         if delay_ms > 0.0:
             slave_domain = (int(os.environ.get('ROS_DOMAIN_ID', '0')) + 1) % 233
@@ -253,8 +257,8 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
                  '-p', f'to_slave.delay:={one_way}', '-p', f'to_master.delay:={one_way}'],
                 stdout=log.file, **child))
         processes[:0] = [
-            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive], stdout=log.file,
-                             **child),
+            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age],
+                             stdout=log.file, **child),
             subprocess.Popen([*SLAVE, '--ros-args', *passive], stdout=log.file, **slave_child)]
         readout = Readout()
         return _show(readout, processes, duration, log, screen)
