@@ -24,6 +24,10 @@ as JSON:
 - with wire timing at 115200 baud and 1 Mbaud: achieved rate over the wire-limited rate;
 - the share of the machine's CPU time the hypervisor stole during the run (a shared VM's
   neighbours), without which the other figures cannot be read.
+
+--load runs a busy loop per core beside everything (the bare loop too); --dds-profile gives the
+driver and the wrench publisher config/fastdds_realtime.xml (DDS threads at SCHED_FIFO 50);
+--publisher-priority runs the wrench publisher's thread SCHED_FIFO, as a bridge would.
 """
 import argparse
 import json
@@ -45,6 +49,7 @@ from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
 from machine import bare_loop, cpu_times, steal_fraction  # noqa: E402, I100
 
 DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
+DDS_PROFILE = REPO / 'config' / 'fastdds_realtime.xml'
 FLIP_PERIOD_S = 0.02
 WRENCH_RATE_HZ = 1000.0
 MOMENT_NM = 0.5
@@ -106,12 +111,14 @@ def run_subscriber(out_path, duration):
         rclpy.try_shutdown()
 
 
-def run_publisher(out_path, duration):
+def run_publisher(out_path, duration, priority=0):
     """Publish a wrench at 1 kHz whose moment about z flips sign every 20 ms."""
     import rclpy
     from geometry_msgs.msg import WrenchStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+    if priority:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     rclpy.init()
     node = rclpy.create_node('loop_benchmark_wrench')
     publisher = node.create_publisher(
@@ -205,9 +212,12 @@ def wrench_latencies(flips, commands):
     return latencies
 
 
-def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_priority=0):
+def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_priority=0,
+        dds_profile=False, publisher_priority=0):
     """Run the four processes for `duration` s; return the figures of this run."""
     env = ros_env(domain_id)
+    realtime_env = dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(DDS_PROFILE)) if dds_profile \
+        else env
     floor = None if baud else bare_loop(rate_hz, duration, loop_priority(driver_parameters))
     tag = f'{rate_hz:g}Hz_{baud or "pty"}'
     record = str(workdir / f'device_{tag}.npy')
@@ -220,12 +230,14 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         node_args += ['-p', parameter]
     driver = subprocess.Popen([sys.executable, '-m', 'kraft_master_driver.nodes.driver',
                                *node_args],
-                              env=env, stdout=subprocess.DEVNULL)
+                              env=realtime_env, stdout=subprocess.DEVNULL)
     subscriber_out = str(workdir / f'subscriber_{tag}')
     publisher_out = str(workdir / f'publisher_{tag}.npy')
     peers = [subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
-                               '--duration', str(duration)], env=env)
-             for role, out in (('subscriber', subscriber_out), ('publisher', publisher_out))]
+                               '--duration', str(duration), '--publisher-priority',
+                               str(publisher_priority)], env=role_env)
+             for role, out, role_env in (('subscriber', subscriber_out, env),
+                                         ('publisher', publisher_out, realtime_env))]
     processes = (*peers, driver, sim)
     try:
         wait_ready([subscriber_out + '.ready', publisher_out + '.ready'], processes)
@@ -334,6 +346,25 @@ def print_table(results):
               f'{100 * r["cpu_steal"]:4.0f}%')
 
 
+def run_all(args, domain_id):
+    """Run every configuration the arguments ask for; return the figures of each run."""
+    results = []
+    with tempfile.TemporaryDirectory() as workdir:
+        runs = [(rate, None) for rate in args.rates] + [(1000.0, baud) for baud in args.bauds]
+        for rate, baud in runs:
+            repeats = []
+            for attempt in range(1, args.repeat + 1):
+                print(f'running {rate:g} Hz, {baud or "pty without wire timing"}, '
+                      f'{args.duration:g} s ({attempt}/{args.repeat}) ...', flush=True)
+                repeats.append(run(rate, args.duration, baud, domain_id,
+                                   pathlib.Path(workdir), args.set, args.sim_priority,
+                                   args.dds_profile, args.publisher_priority))
+            results.extend(repeats)
+            if args.repeat > 1:
+                results.append(median_run(repeats))
+    return results
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--duration', type=float, default=20.0,
@@ -348,6 +379,12 @@ def main():
                         help='extra driver parameters, e.g. loop_priority:=0')
     parser.add_argument('--sim-priority', type=int, default=0,
                         help="the simulator's --priority (default 0: normal)")
+    parser.add_argument('--load', action='store_true',
+                        help='a busy loop per core beside every run (the bare loop too)')
+    parser.add_argument('--dds-profile', action='store_true',
+                        help='driver and wrench publisher with config/fastdds_realtime.xml')
+    parser.add_argument('--publisher-priority', type=int, default=0,
+                        help="the wrench publisher's SCHED_FIFO priority (default 0: normal)")
     parser.add_argument('--json', help='write the figures here (default benchmarks/results/)')
     parser.add_argument('--role', choices=('subscriber', 'publisher'), help=argparse.SUPPRESS)
     parser.add_argument('--out', help=argparse.SUPPRESS)
@@ -355,22 +392,17 @@ def main():
     if args.role == 'subscriber':
         return run_subscriber(args.out, args.duration)
     if args.role == 'publisher':
-        return run_publisher(args.out, args.duration)
+        return run_publisher(args.out, args.duration, args.publisher_priority)
 
     domain_id = 100 + os.getpid() % 100
-    results = []
-    with tempfile.TemporaryDirectory() as workdir:
-        runs = [(rate, None) for rate in args.rates] + [(1000.0, baud) for baud in args.bauds]
-        for rate, baud in runs:
-            repeats = []
-            for attempt in range(1, args.repeat + 1):
-                print(f'running {rate:g} Hz, {baud or "pty without wire timing"}, '
-                      f'{args.duration:g} s ({attempt}/{args.repeat}) ...', flush=True)
-                repeats.append(run(rate, args.duration, baud, domain_id,
-                                   pathlib.Path(workdir), args.set, args.sim_priority))
-            results.extend(repeats)
-            if args.repeat > 1:
-                results.append(median_run(repeats))
+    load = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+            for _ in range(os.cpu_count() if args.load else 0)]
+    try:
+        results = run_all(args, domain_id)
+    finally:
+        for busy in load:
+            busy.kill()
+            busy.wait()
     print_table(results)
     print('cores used by each process (CPU s per s): ' + '; '.join(
         f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}: ' + ', '.join(
@@ -382,7 +414,9 @@ def main():
     machine = {'platform': platform.platform(), 'python': platform.python_version(),
                'cpus': os.cpu_count()}
     out.write_text(json.dumps({'machine': machine, 'driver_parameters': args.set,
-                               'sim_priority': args.sim_priority,
+                               'sim_priority': args.sim_priority, 'load': args.load,
+                               'dds_profile': args.dds_profile,
+                               'publisher_priority': args.publisher_priority,
                                'runs': results}, indent=2, default=float))
     print(f'figures written to {out}')
     return 0

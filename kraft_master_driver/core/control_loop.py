@@ -14,11 +14,10 @@ The hot path works in plain floats with its work inlined: at 1 kHz a chain of sm
 operations costs more than it saves (benchmarks/loop.py measures the loop).
 """
 import operator
-import os
 import time
 from typing import NamedTuple
 
-from kraft_master_driver.core import kinematics
+from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.force_reflection import STALE
 from kraft_master_driver.core.loop_statistics import LoopStatistics
 import numpy as np
@@ -85,6 +84,7 @@ class ControlLoop:
         self.clock = clock
         self.keep_running = keep_running
         self.scheduler = 'normal'
+        self.memory_lock = 'not locked (loop_priority 0)'
         self.centre = None
         self.output = None  # the TorqueOutput of the last send, None without an estimate
         self.pose_entries = None  # 0T6 of the newest frame, 16 floats row by row
@@ -123,20 +123,25 @@ class ControlLoop:
             self.device.close()
 
     def _raise_priority(self):
-        """Give this thread real-time priority if asked and allowed; say what happened."""
+        """Give this thread real-time priority and lock memory if asked and allowed; say so."""
         priority = self.priority
         if not priority:
             return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        except (OSError, AttributeError) as error:
-            self.scheduler = f'normal ({error})'
+        refused = realtime.set_fifo_priority(priority)
+        if refused:
+            self.scheduler = f'normal ({refused})'
             self.log.warning(
-                f'loop_priority {priority}: real-time scheduling refused ({error}); the loop '
-                'runs at normal priority (allow it with an rtprio limit or CAP_SYS_NICE, or '
-                'set loop_priority 0 to silence this)')
+                f'loop_priority {priority}: real-time scheduling refused ({refused}); the loop '
+                f'runs at normal priority ({realtime.PRIORITY_FIX}; or set loop_priority 0 to '
+                'silence this)')
             return
         self.scheduler = f'SCHED_FIFO {priority}'
+        refused = realtime.lock_memory()
+        self.memory_lock = 'locked' if refused is None else f'not locked ({refused})'
+        if refused:
+            self.log.warning(
+                f'memory lock refused ({refused}): a page fault may delay a cycle '
+                f'({realtime.MEMLOCK_FIX})')
 
     def _cycle_until_stopped(self):
         """

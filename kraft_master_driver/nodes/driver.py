@@ -130,9 +130,13 @@ class KraftMasterNode(Node):
             arm=self.arm, calibration=self.calibration,
             torque_scale=tuple(self.config['torque_scale']),
             coupling=self.config['coupling'], operator=self.config['sim_operator'],
-            pot_noise_counts=self.config['sim_noise_counts'])
+            pot_noise_counts=self.config['sim_noise_counts'],
+            priority=self.config['loop_priority'])  # it stands in for hardware: as prompt
         path = self.simulator.start()
         self.get_logger().info(f'simulated hand controller on {path}')
+        if self.simulator.priority_error:
+            self.get_logger().info(  # the loop's own refusal is the warning that says the fix
+                f'simulated hand controller: {self.simulator.priority_error}')
         return path
 
     def _warn_if_wire_limited(self):
@@ -214,7 +218,7 @@ class KraftMasterNode(Node):
         inputs, output = self.inputs, self.loop.output
         level, message, values = driver_diagnostics.driver_diagnostics(DriverReadings(
             statistics=self.loop.statistics, scheduler=self.loop.scheduler,
-            device_stats=device_stats,
+            memory_lock=self.loop.memory_lock, device_stats=device_stats,
             link_state=None if self.device.link_up else self.loop.link_state(),
             force=self.force, force_state=output.state if output else None,
             wrench_sources=inputs.wrench_sources,

@@ -27,6 +27,7 @@ class DriverReadings(NamedTuple):
     master_port: object  # core.passivity.MasterPort: energies, observer, enabled
     slave_energy: tuple  # the slave's energy in, out, dissipated (J), as last received
     slave_link: tuple  # passivity.LinkMonitor.summary() of slave_energy, or None
+    memory_lock: str = 'not locked'  # whether the loop's memory lock was granted, and why not
 
 
 def milliseconds(name, median_p99_max):
@@ -51,6 +52,7 @@ def driver_diagnostics(readings):
            for phase, seconds in statistics.cpu_per_cycle().items()},
         'internal errors': str(statistics.internal_errors),
         'loop scheduler': readings.scheduler,
+        'memory lock': readings.memory_lock,
         'force output': 'enabled' if force.enabled else 'disabled',
         'force state': readings.force_state or 'no_state',
         'wrench sources': str(readings.wrench_sources),
