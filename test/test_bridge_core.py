@@ -102,7 +102,8 @@ def test_rotation_vector_of_a_half_turn():
 @pytest.mark.parametrize('settings, fragment', [
     ({'orientation': 'loose'}, 'orientation'),
     ({'workspace_min': (0.0, 0.0, 1.0), 'workspace_max': (1.0, 1.0, 1.0)}, 'workspace_min'),
-    ({'sensor_rotation': (0.0, 0.0)}, 'sensor_rotation')])
+    ({'sensor_rotation': (0.0, 0.0)}, 'sensor_rotation'),
+    ({'tool_com': (0.0, 0.1)}, 'tool_com'), ({'gravity': (0.0, 0.0, math.inf)}, 'gravity')])
 def test_bad_settings_are_refused_naming_the_setting(settings, fragment):
     with pytest.raises(ValueError, match=fragment):
         Teleoperation(Settings(**settings))

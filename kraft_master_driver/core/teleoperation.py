@@ -170,6 +170,11 @@ class Teleoperation:
         if self.box[0].shape != (3,) or not np.all(self.box[0] < self.box[1]):
             raise ValueError('workspace_min must be below workspace_max on every axis, got '
                              f'{list(settings.workspace_min)} and {list(settings.workspace_max)}')
+        for name in ('tool_com', 'gravity'):
+            values = np.array(getattr(settings, name), dtype=float)
+            if values.shape != (3,) or not np.all(np.isfinite(values)):
+                raise ValueError(f'{name} must be 3 finite numbers, got '
+                                 f'{list(getattr(settings, name))}')
         self.port = SlavePort(settings.drift_gain)
         self.port.enabled = settings.passivity
         self.state = 'DISABLED'
