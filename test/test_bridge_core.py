@@ -428,3 +428,15 @@ def test_the_slave_port_hands_the_environment_no_more_than_the_master_put_in():
     assert port.observed == pytest.approx(0.0, abs=1e-12)
     assert command.position[2] == pytest.approx(ARM_HOME[2] - 0.02 / 5.0)
     assert port.drift[2] == pytest.approx(-0.02 + 0.004)
+
+
+def test_a_stale_arm_pose_is_a_fault():
+    session = Session(arm_timeout=0.05).enabled()
+    bridge = session.bridge
+    for _ in range(60):
+        session.now += DT
+        bridge.master_pose('kraft_master_base', (0.0, 0.0, 0.0), IDENTITY, session.now)
+        bridge.ft_reading('ft_sensor', np.zeros(6), session.now)
+        bridge.check(session.now)
+    assert bridge.describe() == 'FAULT: measured_cp older than arm_timeout 0.05 s'
+    np.testing.assert_array_equal(bridge.arm_command().position, ARM_HOME)
