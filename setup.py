@@ -41,6 +41,7 @@ setup(
             'kraft_master_record = kraft_master_driver.tools.record:main',
             'kraft_master_ctl = kraft_master_driver.tools.ctl:main',
             'kraft_master_link_emulator = kraft_master_driver.nodes.link_emulator:main',
+            'kraft_master_teleop = kraft_master_driver.nodes.teleop:main',
         ],
     },
 )

@@ -207,9 +207,10 @@ class SlavePort(PortEnergy):
         velocity = [(new - old) / dt for new, old in zip(target, self._target)]
         self._target = list(target)
         velocity, power_out, dissipated = self._passive(velocity, force, dt)
-        # Give drift back with what is left over after this step, never more.
-        drift = self.drift
-        if any(drift):
+        # Give drift back with what is left over after this step, never more: the drift this
+        # step's motion leaves, not the one before it (that would lead the target by a step).
+        drift = [t - c - v * dt for t, c, v in zip(self._target, self.command, velocity)]
+        if any(abs(d) > 1e-12 for d in drift):
             back = [v + self.drift_gain * d for v, d in zip(velocity, drift)]
             back_power = -_dot(force, back)
             if self._excess(back_power, dt) == 0.0:

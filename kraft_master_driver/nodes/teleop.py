@@ -1,0 +1,297 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+kraft_master_teleop: the bridge between the Kraft Master's driver and a real arm.
+
+Master side, the driver's names: it takes `pose` and `master_energy`, publishes `wrench` and
+`slave_energy`. Arm side, CRTK names to remap: it publishes `servo_cp` (pose mode) or
+`servo_cv` (twist mode) and takes `measured_cp` and `measured_cf`. `clutch` (or a `joy`
+button) holds the arm and frees the master; the services `enable` and `tare` start it and zero
+the F/T bias. The logic is core.teleoperation.Teleoperation; this node only moves messages.
+"""
+import math
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
+from kraft_master_driver.nodes.lifecycle import run_node
+from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Joy
+from std_msgs.msg import Bool, String
+from std_srvs.srv import SetBool, Trigger
+
+MODES = ('pose', 'twist')
+_DEFAULT = Settings()
+
+
+def _spec(name, description, **bounds):
+    """Return a Spec whose default is core.teleoperation.Settings' value of `name`."""
+    default = getattr(_DEFAULT, name)
+    return Spec(list(default) if isinstance(default, tuple) else default, description, **bounds)
+
+
+PARAMETERS = {
+    'mode': Spec('pose', "'pose': publish servo_cp, the target pose; 'twist': publish "
+                 'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
+    'rate_hz': Spec(100.0, 'Rate of the timeout checks, of the hold command while not '
+                    'following, and of slave_energy (Hz).', low=1.0, high=2000.0),
+    'scale': _spec('scale', 'Arm motion per master motion (1).', low=0.001, high=100.0),
+    'orientation': Spec('follow', "'follow': the arm turns as the master does; 'fixed': it "
+                        "keeps its orientation at registration; 'ignore': not commanded (pose "
+                        'mode sends the measured one, twist mode no rotation).',
+                        choices=ORIENTATIONS),
+    'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
+                           "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
+                           'w.'),
+    'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
+                             'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
+    'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
+                          'base_frame.'),
+    'arm_frame': _spec('arm_frame', 'frame_id of measured_cp, servo_cp and servo_cv: the '
+                       "arm's base frame."),
+    'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame.'),
+    'workspace_min': _spec('workspace_min', "Lower corner of the box the arm's target stays "
+                           'in (m, arm base frame).'),
+    'workspace_max': _spec('workspace_max', 'Upper corner of that box (m).'),
+    'max_linear_speed': _spec('max_linear_speed', "Speed limit of the arm's target (m/s).",
+                              low=0.001, high=10.0),
+    'max_angular_speed': _spec('max_angular_speed', "Angular speed limit of the arm's target "
+                               '(rad/s).', low=0.001, high=100.0),
+    'twist_gain': _spec('twist_gain', 'Twist mode: servo_cv = gain * (target - measured), '
+                        '(1/s).', low=0.001, high=1000.0),
+    'master_timeout': _spec('master_timeout', 'An older pose holds the arm (s).',
+                            low=0.001, high=10.0),
+    'arm_timeout': _spec('arm_timeout', 'An older measured_cp is a FAULT (s).',
+                         low=0.001, high=10.0),
+    'ft_timeout': _spec('ft_timeout', 'An older measured_cf is a FAULT (s).',
+                        low=0.001, high=10.0),
+    'max_tracking_error': _spec('max_tracking_error', 'measured_cp farther from the command '
+                                'is a FAULT (m).', low=0.0001, high=10.0),
+    'max_tracking_angle': _spec('max_tracking_angle', 'measured_cp turned farther from the '
+                                'command is a FAULT (rad).', low=0.0001, high=math.pi),
+    'force_feedback': _spec('force_feedback', 'Reflect measured_cf to the master; false: no '
+                            'F/T sensor, zero wrench.'),
+    'tool_mass': _spec('tool_mass', 'Mass of the tool beyond the sensor (kg).',
+                       low=0.0, high=100.0),
+    'tool_com': _spec('tool_com', "The tool's centre of mass (m, sensor frame)."),
+    'gravity': _spec('gravity', 'Gravity (m/s^2, arm base frame).'),
+    'force_scale': _spec('force_scale', 'Master force per arm force (1).', low=0.0, high=100.0),
+    'moment_scale': _spec('moment_scale', 'Master moment per arm moment (1).',
+                          low=0.0, high=100.0),
+    'force_deadband': _spec('force_deadband', 'Forces below this are not reflected (N, '
+                            'master side).', low=0.0, high=100.0),
+    'moment_deadband': _spec('moment_deadband', 'Moments below this are not reflected (N*m).',
+                             low=0.0, high=10.0),
+    'force_cutoff_hz': _spec('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
+                             'wrench (Hz); 0: none.', low=0.0, high=1000.0),
+    'max_force': _spec('max_force', 'Largest force sent to the master (N).',
+                       low=0.0, high=200.0),
+    'max_moment': _spec('max_moment', 'Largest moment sent to the master (N*m).',
+                        low=0.0, high=20.0),
+    'max_input_force': _spec('max_input_force', 'A larger measured_cf force is refused (N).',
+                             low=1.0, high=1e5),
+    'max_input_moment': _spec('max_input_moment', 'A larger measured_cf moment is refused '
+                              '(N*m).', low=0.1, high=1e4),
+    'max_input_position': _spec('max_input_position', 'A pose or measured_cp farther from its '
+                                'base is refused (m).', low=0.1, high=1000.0),
+    'passivity': _spec('passivity', "Time-domain passivity control of the arm's command, fed "
+                       'by master_energy.'),
+    'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
+                        low=0.0, high=1000.0),
+    'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
+                          low=-1, high=127),
+}
+
+
+def _pose_values(msg):
+    p, q = msg.pose.position, msg.pose.orientation
+    return msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
+
+
+class TeleopNode(Node):
+    """Moves messages between the master, the arm and a Teleoperation."""
+
+    def __init__(self, params_files=(), **kwargs):
+        """Declare and check the parameters, then wire the topics and services."""
+        super().__init__('kraft_master_teleop', **kwargs)
+        config = declare_parameters(self, PARAMETERS, params_files)
+        try:
+            self.bridge = Teleoperation(Settings(**{
+                name: tuple(config[name]) if isinstance(config[name], list) else config[name]
+                for name in Settings._fields}))
+        except ValueError as error:
+            raise ParameterError(f'parameter {error}') from None
+        self.mode = config['mode']
+        self.clutch_button = config['clutch_button']
+        self._clutch_inputs = {'clutch': False, 'joy': False}
+        self._published_state = None
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # Best effort subscriptions take reliable and best-effort publishers alike.
+        inputs = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.servo_pub = (self.create_publisher(PoseStamped, 'servo_cp', reliable)
+                          if self.mode == 'pose'
+                          else self.create_publisher(TwistStamped, 'servo_cv', reliable))
+        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', reliable)
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', reliable)
+        self.state_pub = self.create_publisher(String, 'operating_state', QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
+        self.create_subscription(PoseStamped, 'pose', self._on_pose, inputs)
+        self.create_subscription(Vector3Stamped, 'master_energy',
+                                 lambda msg: self.bridge.master_energy(msg.vector.x), inputs)
+        self.create_subscription(PoseStamped, 'measured_cp', self._on_measured_cp, inputs)
+        self.create_subscription(WrenchStamped, 'measured_cf', self._on_measured_cf, inputs)
+        self.create_subscription(Bool, 'clutch', self._on_clutch, reliable)
+        if self.clutch_button >= 0:
+            self.create_subscription(Joy, 'joy', self._on_joy, reliable)
+        self.create_service(SetBool, 'enable', self._on_enable)
+        self.create_service(Trigger, 'tare', self._on_tare)
+        self.create_timer(1.0 / config['rate_hz'], self._tick)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self._publish_state()
+        self.get_logger().info(
+            f'bridge in {self.mode} mode, scale {config["scale"]:g}, orientation '
+            f'{config["orientation"]}; DISABLED until the enable service is called')
+
+    # -- inputs ----------------------------------------------------------------------
+
+    def _refused(self, refusal):
+        """Log a refused input in one line, then publish the state it left."""
+        if refusal is not None:
+            self.get_logger().error(refusal, throttle_duration_sec=1.0)
+        self._publish_state()
+
+    def _on_pose(self, msg):
+        self._refused(self.bridge.master_pose(*_pose_values(msg), time.monotonic()))
+        if self.bridge.following:
+            self._publish_command()
+
+    def _on_measured_cp(self, msg):
+        self._refused(self.bridge.arm_pose(*_pose_values(msg), time.monotonic()))
+
+    def _on_measured_cf(self, msg):
+        f, m = msg.wrench.force, msg.wrench.torque
+        now = time.monotonic()
+        self._refused(self.bridge.ft_reading(msg.header.frame_id,
+                                             (f.x, f.y, f.z, m.x, m.y, m.z), now))
+        self._publish_wrench(self.bridge.master_wrench(now))
+
+    def _set_clutch(self, source, pressed):
+        self._clutch_inputs[source] = pressed
+        self.bridge.set_clutch(any(self._clutch_inputs.values()))
+        self._publish_state()
+
+    def _on_clutch(self, msg):
+        self._set_clutch('clutch', bool(msg.data))
+
+    def _on_joy(self, msg):
+        if self.clutch_button >= len(msg.buttons):
+            self.get_logger().error(
+                f'joy has {len(msg.buttons)} buttons, no clutch_button {self.clutch_button}',
+                throttle_duration_sec=1.0)
+            return
+        self._set_clutch('joy', msg.buttons[self.clutch_button] == 1)
+
+    def _on_enable(self, request, response):
+        if request.data:
+            refusal = self.bridge.enable(time.monotonic())
+            response.success = refusal is None
+            response.message = refusal or self.bridge.describe()
+        else:
+            self.bridge.disable()
+            response.success, response.message = True, self.bridge.describe()
+        self.get_logger().info(f'enable {request.data}: {response.message}')
+        self._publish_state()
+        return response
+
+    def _on_tare(self, _request, response):
+        refusal = self.bridge.tare(time.monotonic())
+        response.success = refusal is None
+        response.message = refusal or 'F/T bias taken'
+        return response
+
+    # -- outputs ---------------------------------------------------------------------
+
+    def _stamp(self, msg, frame_id):
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = frame_id
+        return msg
+
+    def _publish_command(self):
+        """Publish the arm's command: the target or held pose, or the twist toward it."""
+        settings = self.bridge.settings
+        if self.mode == 'pose':
+            pose = self.bridge.arm_command()
+            if pose is None:
+                return
+            msg = self._stamp(PoseStamped(), settings.arm_frame)
+            p, q = msg.pose.position, msg.pose.orientation
+            p.x, p.y, p.z = (float(v) for v in pose.position)
+            q.x, q.y, q.z, q.w = pose.quaternion
+        else:
+            if self.bridge.state == 'DISABLED':
+                return
+            msg = self._stamp(TwistStamped(), settings.arm_frame)
+            v, w = msg.twist.linear, msg.twist.angular
+            v.x, v.y, v.z, w.x, w.y, w.z = (float(x) for x in self.bridge.arm_twist())
+        self.servo_pub.publish(msg)
+
+    def _publish_wrench(self, wrench):
+        msg = self._stamp(WrenchStamped(), self.bridge.settings.master_frame)
+        f, m = msg.wrench.force, msg.wrench.torque
+        f.x, f.y, f.z, m.x, m.y, m.z = (float(v) for v in wrench)
+        self.wrench_pub.publish(msg)
+
+    def _publish_state(self):
+        text = self.bridge.describe()
+        if text != self._published_state:
+            self._published_state = text
+            self.state_pub.publish(String(data=text))
+
+    def _tick(self):
+        """Apply the timeouts; while not following, hold the arm and send the master zero."""
+        now = time.monotonic()
+        self.bridge.check(now)
+        self._publish_state()
+        bridge = self.bridge
+        if not bridge.following:
+            self._publish_command()
+            self._publish_wrench(bridge.master_wrench(now))
+        elif not bridge.settings.force_feedback:
+            self._publish_wrench(bridge.master_wrench(now))
+        port = bridge.port
+        msg = self._stamp(Vector3Stamped(), bridge.settings.master_frame)
+        msg.vector.x, msg.vector.y, msg.vector.z = port.energy_in, port.energy_out, port.dissipated
+        self.energy_pub.publish(msg)
+
+    def _publish_diagnostics(self):
+        bridge, port = self.bridge, self.bridge.port
+        level = DiagnosticStatus.ERROR if bridge.state == 'FAULT' else DiagnosticStatus.OK
+        values = {'state': bridge.state, 'reason': bridge.reason, 'mode': self.mode,
+                  'clutch': 'pressed' if bridge.clutch_pressed else 'released',
+                  'passivity': 'on' if port.enabled else 'off',
+                  'slave energy in (J)': f'{port.energy_in:.4f}',
+                  'slave energy out (J)': f'{port.energy_out:.4f}',
+                  'slave energy dissipated (J)': f'{port.dissipated:.4f}',
+                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+        array = DiagnosticArray(status=[DiagnosticStatus(
+            name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
+            message=bridge.describe(),
+            values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
+
+
+def main(args=None):
+    """Run the bridge until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    return run_node(TeleopNode, 'kraft_master_teleop', __doc__.strip().splitlines()[0],
+                    PARAMETERS, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,442 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The teleoperation bridge's logic without ROS: states, registration, clutch, force path."""
+import math
+
+from hypothesis import given, settings as hypothesis_settings, strategies as st
+from kraft_master_driver.core.teleoperation import (
+    quaternion_to_rotation, rotation_from_vector, rotation_parameter, rotation_vector,
+    rpy_to_rotation, Settings, Teleoperation)
+import numpy as np
+import pytest
+
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+ARM_HOME = np.array([0.4, 0.1, 0.3])
+DT = 0.001
+
+
+def about_z(angle):
+    """Return the quaternion (x, y, z, w) of a turn of `angle` rad about z."""
+    return (0.0, 0.0, math.sin(angle / 2), math.cos(angle / 2))
+
+
+class Session:
+    """A Teleoperation fed by a stand-in master, arm and F/T sensor, 1 ms per step."""
+
+    def __init__(self, **settings):
+        """Start at t = 1 s, every input fresh; speed limits wide unless given (fast tests)."""
+        settings = {'max_linear_speed': 10.0, 'max_angular_speed': 100.0, **settings}
+        self.bridge = Teleoperation(Settings(**settings))
+        self.now = 1.0
+        self.master = np.zeros(3)
+        self.master_orientation = IDENTITY
+        self.arm_orientation = IDENTITY
+        self.reading = np.zeros(6)
+        self.feed(arm=ARM_HOME)
+
+    def feed(self, master=None, arm=None, reading=None, master_orientation=None):
+        """Advance 1 ms and hand the bridge the master pose, arm pose and F/T reading."""
+        self.now += DT
+        if master is not None:
+            self.master = np.asarray(master, dtype=float)
+        if master_orientation is not None:
+            self.master_orientation = master_orientation
+        if reading is not None:
+            self.reading = np.asarray(reading, dtype=float)
+        refusals = [
+            self.bridge.master_pose('kraft_master_base', self.master, self.master_orientation,
+                                    self.now),
+            self.bridge.arm_pose('base_link', ARM_HOME if arm is None else arm,
+                                 self.arm_orientation, self.now),
+            self.bridge.ft_reading('ft_sensor', self.reading, self.now)]
+        assert refusals == [None] * 3
+        self.bridge.check(self.now)
+
+    def follow(self, master, **inputs):
+        """Feed the master pose with the arm where it was commanded; return the command."""
+        command = self.bridge.arm_command()
+        self.feed(master=master, arm=command.position if command else None, **inputs)
+        return self.bridge.arm_command()
+
+    def enabled(self):
+        """Enable; return self."""
+        assert self.bridge.enable(self.now) is None
+        self.feed()
+        return self
+
+
+# -- rotations ------------------------------------------------------------------------------
+
+def test_roll_pitch_yaw_and_quaternion_give_the_same_rotation():
+    yaw = rotation_parameter('r', [0.0, 0.0, math.pi / 2])
+    np.testing.assert_allclose(yaw @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(rotation_parameter('r', about_z(math.pi / 2)), yaw, atol=1e-12)
+    pitch = rpy_to_rotation(0.0, math.pi / 2, 0.0)
+    np.testing.assert_allclose(pitch @ [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], atol=1e-12)
+
+
+@pytest.mark.parametrize('values, fragment', [
+    ([1.0, 2.0], '3 finite values'), ([0.0, math.nan, 0.0], '3 finite values'),
+    ([0.0, 0.0, 0.0, 2.0], 'not of unit length')])
+def test_a_bad_rotation_parameter_is_refused_naming_it(values, fragment):
+    with pytest.raises(ValueError, match=f'base_rotation.*{fragment}|{fragment}'):
+        rotation_parameter('base_rotation', values)
+
+
+@hypothesis_settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3), st.floats(0.0, math.pi - 1e-3))
+def test_rotation_vector_inverts_rodrigues(axis, angle):
+    axis = np.array(axis)
+    if np.linalg.norm(axis) < 1e-3:
+        return
+    vector = angle * axis / np.linalg.norm(axis)
+    np.testing.assert_allclose(rotation_vector(rotation_from_vector(vector)), vector, atol=1e-7)
+
+
+def test_rotation_vector_of_a_half_turn():
+    half_turn = quaternion_to_rotation((0.0, 1.0, 0.0, 0.0))
+    np.testing.assert_allclose(np.abs(rotation_vector(half_turn)), [0.0, math.pi, 0.0],
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize('settings, fragment', [
+    ({'orientation': 'loose'}, 'orientation'),
+    ({'workspace_min': (0.0, 0.0, 1.0), 'workspace_max': (1.0, 1.0, 1.0)}, 'workspace_min'),
+    ({'sensor_rotation': (0.0, 0.0)}, 'sensor_rotation'),
+    ({'tool_com': (0.0, 0.1)}, 'tool_com'), ({'gravity': (0.0, 0.0, math.inf)}, 'gravity')])
+def test_bad_settings_are_refused_naming_the_setting(settings, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        Teleoperation(Settings(**settings))
+
+
+# -- states, registration, clutch ---------------------------------------------------------
+
+def test_nothing_is_sent_to_the_arm_until_enabled():
+    session = Session()
+    for step in range(5):
+        session.feed(master=(0.01 * step, 0.0, 0.0), reading=(5.0, 0, 0, 0, 0, 0))
+    bridge = session.bridge
+    assert bridge.state == 'DISABLED'
+    assert bridge.arm_command() is None
+    np.testing.assert_array_equal(bridge.arm_twist(), np.zeros(6))
+    np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
+
+
+def test_enable_needs_every_input_fresh_and_the_arm_in_the_box():
+    bridge = Teleoperation(Settings())
+    assert bridge.enable(1.0) == 'no fresh pose, measured_cp, measured_cf: not enabled'
+    session = Session()
+    assert session.bridge.enable(session.now + 0.2) == (
+        'no fresh pose, measured_cp, measured_cf: not enabled')
+    boxed = Session(workspace_min=(0.5, -1.0, -1.0))
+    assert 'outside the workspace box' in boxed.bridge.enable(boxed.now)
+    assert boxed.bridge.state == 'DISABLED'
+    without_ft = Teleoperation(Settings(force_feedback=False))
+    without_ft.master_pose('kraft_master_base', (0, 0, 0), IDENTITY, 1.0)
+    without_ft.arm_pose('base_link', ARM_HOME, IDENTITY, 1.0)
+    assert without_ft.enable(1.0) is None
+
+
+@pytest.mark.parametrize('master_start', [(0.0, 0.0, 0.0), (0.25, -0.3, 0.12),
+                                          (-0.2, 0.4, -0.15)])
+def test_registration_at_enable_starts_the_target_at_the_arm_wherever_the_master_is(
+        master_start):
+    session = Session(scale=0.5)
+    session.feed(master=master_start, master_orientation=about_z(0.7))
+    session.enabled()
+    np.testing.assert_array_equal(session.bridge.arm_command().position, ARM_HOME)
+    start = np.array(master_start)
+    command = session.follow(start + (0.0, 0.0, 0.0))
+    np.testing.assert_allclose(command.position, ARM_HOME, atol=1e-12)
+    np.testing.assert_allclose(command.quaternion, IDENTITY, atol=1e-12)
+    for step in range(1, 21):
+        command = session.follow(start + (0.0001 * step, 0.0, 0.0))
+    np.testing.assert_allclose(command.position, ARM_HOME + (0.001, 0.0, 0.0), atol=1e-12)
+
+
+def test_clutch_holds_the_arm_frees_the_master_and_release_registers_anew():
+    session = Session(scale=2.0).enabled()
+    bridge = session.bridge
+    for step in range(1, 11):
+        session.follow((0.0, 0.001 * step, 0.0), reading=(0.0, 0.0, 4.0, 0, 0, 0))
+    held = bridge.arm_command().position.copy()
+    np.testing.assert_allclose(held, ARM_HOME + (0.0, 0.02, 0.0), atol=1e-12)
+    assert bridge.master_wrench(session.now)[2] == pytest.approx(4.0)
+
+    bridge.set_clutch(True)
+    assert bridge.describe() == 'CLUTCHED'
+    for step in range(1, 50):  # the master moves 0.2 m away while clutched
+        session.follow((0.004 * step, 0.01, 0.0))
+        np.testing.assert_array_equal(bridge.arm_command().position, held)
+        np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
+    bridge.set_clutch(False)
+    assert bridge.state == 'ENABLED'
+    steps = [session.follow((0.196 + 0.0001 * step, 0.01, 0.0)).position
+             for step in range(1, 6)]
+    # The first pose after release registers: the target does not move.
+    np.testing.assert_array_equal(steps[0], held)
+    np.testing.assert_allclose(steps[-1], held + (0.0008, 0.0, 0.0), atol=1e-12)
+
+
+def test_enable_while_the_clutch_is_pressed_waits_for_its_release():
+    session = Session()
+    session.bridge.set_clutch(True)
+    session.enabled()
+    assert session.bridge.state == 'CLUTCHED'
+    np.testing.assert_array_equal(session.bridge.arm_command().position, ARM_HOME)
+    session.bridge.set_clutch(False)
+    np.testing.assert_array_equal(session.follow((0.3, 0.0, 0.0)).position, ARM_HOME)
+
+
+def test_disable_sends_nothing_more():
+    session = Session().enabled()
+    session.bridge.disable()
+    session.feed(master=(0.1, 0.0, 0.0))
+    assert session.bridge.describe() == 'DISABLED: disabled'
+    assert session.bridge.arm_command() is None
+
+
+# -- mapping --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('base_rotation', [(0.0, 0.0, math.pi / 2), about_z(math.pi / 2)])
+def test_base_rotation_turns_master_motion_and_the_force_back(base_rotation):
+    session = Session(base_rotation=base_rotation).enabled()
+    for step in range(1, 11):
+        command = session.follow((0.001 * step, 0.0, 0.0), reading=(0.0, 3.0, 0.0, 0, 0, 0))
+    # Master +x is arm +y; the arm's +y force is the master's +x.
+    np.testing.assert_allclose(command.position, ARM_HOME + (0.0, 0.01, 0.0), atol=1e-12)
+    np.testing.assert_allclose(session.bridge.master_wrench(session.now),
+                               [3.0, 0.0, 0.0, 0, 0, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize('orientation, expected_yaw', [
+    ('follow', 0.2), ('fixed', 0.0), ('ignore', 0.05)])
+def test_orientation_followed_held_or_ignored(orientation, expected_yaw):
+    session = Session(orientation=orientation).enabled()
+    session.arm_orientation = about_z(0.05)  # where the arm's controller leaves it
+    for step in range(1, 11):
+        command = session.follow((0.0, 0.0, 0.0), master_orientation=about_z(0.02 * step))
+    np.testing.assert_allclose(command.quaternion, about_z(expected_yaw), atol=1e-12)
+    angular = session.bridge.arm_twist()[3:]
+    if orientation == 'ignore':
+        np.testing.assert_array_equal(angular, np.zeros(3))
+    else:
+        np.testing.assert_allclose(angular, [0.0, 0.0, 10.0 * (expected_yaw - 0.05)],
+                                   atol=1e-9)
+
+
+def test_the_target_stays_in_the_workspace_box():
+    session = Session(workspace_max=(0.42, 2.0, 2.0)).enabled()
+    for step in range(1, 101):
+        command = session.follow((0.001 * step, 0.0, 0.0))
+    assert command.position[0] == pytest.approx(0.42)
+
+
+def test_the_target_moves_no_faster_than_the_speed_limits():
+    session = Session(max_linear_speed=0.1, max_angular_speed=0.5).enabled()
+    positions, angles = [], []
+    for _ in range(20):  # the master jumps 5 cm and a quarter turn
+        command = session.follow((0.05, 0.0, 0.0), master_orientation=about_z(math.pi / 2))
+        positions.append(command.position[0])
+        angles.append(2 * math.asin(command.quaternion[2]))
+    assert np.diff(positions).max() == pytest.approx(0.1 * DT)
+    assert np.diff(angles).max() == pytest.approx(0.5 * DT)
+    assert positions[-1] - ARM_HOME[0] == pytest.approx(20 * 0.1 * DT)
+
+
+def test_twist_mode_drives_toward_the_command_within_the_speed_limit():
+    session = Session(twist_gain=10.0, max_linear_speed=0.2).enabled()
+    for step in range(1, 11):
+        session.follow((0.001 * step, 0.0, 0.0))
+    bridge = session.bridge
+    measured = ARM_HOME + (0.005, 0.0, 0.0)
+    bridge.arm_pose('base_link', measured, IDENTITY, session.now)
+    np.testing.assert_allclose(bridge.arm_twist()[:3],
+                               10.0 * (bridge.arm_command().position - measured), atol=1e-12)
+    session.follow((0.04, 0.0, 0.0))
+    bridge.arm_pose('base_link', ARM_HOME, IDENTITY, session.now)
+    assert np.linalg.norm(bridge.arm_twist()[:3]) <= 0.2 + 1e-12
+
+
+# -- force path ---------------------------------------------------------------------------
+
+def tool_weight_reading(mass, com, arm_orientation):
+    """Return what the sensor reads from a tool's weight alone, in its frame."""
+    rotation = quaternion_to_rotation(arm_orientation)
+    force = mass * rotation.T @ [0.0, 0.0, -9.81]
+    return np.concatenate([force, np.cross(com, force)])
+
+
+def test_the_tool_weight_is_taken_off_at_every_orientation():
+    com = (0.0, 0.0, 0.05)
+    session = Session(tool_mass=0.8, tool_com=com, max_tracking_angle=3.0).enabled()
+    for angle in (0.0, 0.6, 1.4):
+        orientation = (math.sin(angle / 2), 0.0, 0.0, math.cos(angle / 2))  # about x
+        session.arm_orientation = orientation
+        session.follow((0.0, 0.0, 0.0), reading=tool_weight_reading(0.8, com, orientation))
+        np.testing.assert_allclose(session.bridge.contact_wrench(), np.zeros(6), atol=1e-12)
+
+
+def test_tare_takes_the_bias_off():
+    session = Session().enabled()
+    bias = np.array([1.0, -2.0, 0.5, 0.1, 0.0, -0.1])
+    session.follow((0.0, 0.0, 0.0), reading=bias)
+    assert session.bridge.tare(session.now) is None
+    session.follow((0.0, 0.0, 0.0), reading=bias + (0.0, 0.0, 2.0, 0, 0, 0))
+    np.testing.assert_allclose(session.bridge.master_wrench(session.now),
+                               [0.0, 0.0, 2.0, 0, 0, 0], atol=1e-12)
+    assert Teleoperation().tare(0.0) == 'no fresh measured_cf to tare'
+
+
+def test_the_sensor_frame_is_turned_into_the_base_frame():
+    session = Session(sensor_rotation=(math.pi, 0.0, 0.0)).enabled()  # sensor z points down
+    session.follow((0.0, 0.0, 0.0), reading=(0.0, 0.0, -5.0, 0.0, 0.0, 0.0))
+    np.testing.assert_allclose(session.bridge.contact_wrench()[:3], [0.0, 0.0, 5.0], atol=1e-12)
+
+
+def test_force_is_scaled_dead_banded_and_limited():
+    session = Session(force_scale=0.5, moment_scale=2.0, force_deadband=1.0,
+                      moment_deadband=0.1, max_force=3.0, max_moment=1.0).enabled()
+    bridge = session.bridge
+    session.follow((0.0, 0.0, 0.0), reading=(0.0, 0.0, 4.0, 0.0, 0.3, 0.0))
+    np.testing.assert_allclose(bridge.master_wrench(session.now), [0, 0, 1.0, 0, 0.5, 0])
+    session.follow((0.0, 0.0, 0.0), reading=(0.0, 1.0, 0.0, 0.0, 0.0, 0.0))
+    np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
+    session.follow((0.0, 0.0, 0.0), reading=(40.0, 0.0, 0.0, 0.0, 0.0, 5.0))
+    np.testing.assert_allclose(bridge.master_wrench(session.now), [3.0, 0, 0, 0, 0, 1.0])
+
+
+def test_the_low_pass_follows_a_step_at_its_cutoff():
+    session = Session(force_cutoff_hz=10.0).enabled()
+    bridge = session.bridge
+    bridge.master_wrench(session.now)
+    responses = []
+    for _ in range(100):
+        session.follow((0.0, 0.0, 0.0), reading=(0.0, 0.0, 1.0, 0, 0, 0))
+        responses.append(bridge.master_wrench(session.now)[2])
+    # First order: 1 - exp(-2 pi fc t) after t seconds.
+    for steps in (1, 16, 100):
+        assert responses[steps - 1] == pytest.approx(
+            1.0 - math.exp(-2 * math.pi * 10.0 * steps * DT), rel=1e-9)
+
+
+# -- safety -------------------------------------------------------------------------------
+
+def test_a_stale_master_pose_holds_the_arm_and_a_fresh_one_registers_anew():
+    session = Session(master_timeout=0.1).enabled()
+    bridge = session.bridge
+    for step in range(1, 11):
+        session.follow((0.001 * step, 0.0, 0.0))
+    held = bridge.arm_command().position.copy()
+    for _ in range(150):  # arm and F/T go on; the master is silent
+        session.now += DT
+        bridge.arm_pose('base_link', held, IDENTITY, session.now)
+        bridge.ft_reading('ft_sensor', np.zeros(6), session.now)
+        bridge.check(session.now)
+    assert bridge.describe() == 'ENABLED: holding: pose older than master_timeout 0.1 s'
+    np.testing.assert_array_equal(bridge.arm_command().position, held)
+    np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
+    np.testing.assert_array_equal(session.follow((0.2, 0.0, 0.0)).position, held)
+    assert bridge.describe() == 'ENABLED'
+    np.testing.assert_allclose(session.follow((0.201, 0.0, 0.0)).position,
+                               held + (0.001, 0.0, 0.0), atol=1e-12)
+
+
+def test_a_stale_force_reading_is_a_fault_with_zero_wrench_and_the_arm_held():
+    session = Session(ft_timeout=0.05).enabled()
+    bridge = session.bridge
+    for step in range(1, 11):
+        session.follow((0.001 * step, 0.0, 0.0), reading=(0.0, 0.0, 2.0, 0, 0, 0))
+    measured = bridge.arm_command().position - (0.0005, 0.0, 0.0)
+    for _ in range(60):
+        session.now += DT
+        bridge.master_pose('kraft_master_base', (0.02, 0.0, 0.0), IDENTITY, session.now)
+        bridge.arm_pose('base_link', measured, IDENTITY, session.now)
+        bridge.check(session.now)
+    assert bridge.describe() == 'FAULT: measured_cf older than ft_timeout 0.05 s'
+    np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
+    np.testing.assert_array_equal(bridge.arm_command().position, measured)
+
+
+@pytest.mark.parametrize('topic, arguments, fragment', [
+    ('pose', ('kraft_master_wrist', (0, 0, 0), IDENTITY), "frame_id 'kraft_master_wrist' is not"),
+    ('pose', ('kraft_master_base', (0, math.nan, 0), IDENTITY), 'not finite'),
+    ('pose', ('kraft_master_base', (0, 0, 0), (0, 0, 0, 0.5)), 'not a unit quaternion'),
+    ('measured_cp', ('base_link', (50.0, 0, 0), IDENTITY), 'beyond max_input_position'),
+    ('measured_cp', ('world', ARM_HOME, IDENTITY), "frame_id 'world' is not 'base_link'"),
+    ('measured_cf', ('ft_sensor', (0, 0, 5000.0, 0, 0, 0)), 'beyond max_input_force'),
+    ('measured_cf', ('ft_sensor', (0, 0, 0, math.inf, 0, 0)), 'not finite'),
+    ('measured_cf', ('tool0', (0, 0, 1.0, 0, 0, 0)), "frame_id 'tool0' is not 'ft_sensor'"),
+])
+def test_a_bad_input_is_refused_in_one_line_and_is_a_fault(topic, arguments, fragment):
+    session = Session().enabled()
+    bridge = session.bridge
+    held = bridge.arm_command()
+    method = {'pose': bridge.master_pose, 'measured_cp': bridge.arm_pose,
+              'measured_cf': bridge.ft_reading}[topic]
+    refusal = method(*arguments, session.now)
+    assert refusal.startswith(f'{topic} refused: ') and fragment in refusal
+    assert '\n' not in refusal
+    assert bridge.describe() == f'FAULT: {refusal}'
+    np.testing.assert_array_equal(bridge.arm_command().position, held.position)
+    np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
+    session.feed()
+    assert bridge.enable(session.now) is None and bridge.state == 'ENABLED'
+
+
+def test_a_bad_input_before_enable_is_a_fault_that_sends_nothing():
+    session = Session()
+    session.bridge.ft_reading('ft_sensor', (math.nan,) * 6, session.now)
+    assert session.bridge.state == 'FAULT'
+    assert session.bridge.arm_command() is None
+
+
+def test_a_tracking_error_holds_the_arm_where_it_is_and_is_a_fault():
+    session = Session(max_tracking_error=0.01).enabled()
+    bridge = session.bridge
+    for step in range(1, 11):
+        session.follow((0.001 * step, 0.0, 0.0))
+    stuck = ARM_HOME + (0.0, 0.0, -0.011)
+    assert 'beyond max_tracking_error 0.01 m' in bridge.arm_pose(
+        'base_link', stuck, IDENTITY, session.now)
+    assert bridge.state == 'FAULT'
+    session.follow((0.05, 0.0, 0.0))
+    np.testing.assert_array_equal(bridge.arm_command().position, stuck)
+    np.testing.assert_array_equal(bridge.arm_twist(), np.zeros(6))
+
+
+# -- passivity's slave port ------------------------------------------------------------------
+
+def test_without_passivity_the_command_is_the_target():
+    session = Session().enabled()
+    session.feed(reading=(0.0, 0.0, 5.0, 0, 0, 0))
+    for step in range(1, 11):
+        command = session.follow((0.0, 0.0, -0.001 * step))
+    np.testing.assert_allclose(command.position, ARM_HOME - (0.0, 0.0, 0.01), atol=1e-12)
+    assert session.bridge.port.energy_out == pytest.approx(5.0 * 0.01)
+
+
+def test_the_slave_port_hands_the_environment_no_more_than_the_master_put_in():
+    session = Session(passivity=True).enabled()
+    bridge = session.bridge
+    bridge.master_energy(0.02)
+    session.feed(reading=(0.0, 0.0, 5.0, 0, 0, 0))
+    for step in range(1, 21):  # pressing 2 cm into a 5 N contact: 0.1 J asked, 0.02 J given
+        command = session.follow((0.0, 0.0, -0.001 * step))
+    port = bridge.port
+    assert port.energy_out == pytest.approx(0.02)
+    assert port.observed == pytest.approx(0.0, abs=1e-12)
+    assert command.position[2] == pytest.approx(ARM_HOME[2] - 0.02 / 5.0)
+    assert port.drift[2] == pytest.approx(-0.02 + 0.004)
+
+
+def test_a_stale_arm_pose_is_a_fault():
+    session = Session(arm_timeout=0.05).enabled()
+    bridge = session.bridge
+    for _ in range(60):
+        session.now += DT
+        bridge.master_pose('kraft_master_base', (0.0, 0.0, 0.0), IDENTITY, session.now)
+        bridge.ft_reading('ft_sensor', np.zeros(6), session.now)
+        bridge.check(session.now)
+    assert bridge.describe() == 'FAULT: measured_cp older than arm_timeout 0.05 s'
+    np.testing.assert_array_equal(bridge.arm_command().position, ARM_HOME)
