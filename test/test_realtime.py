@@ -1,0 +1,102 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""A real-time station: what the driver asks of Linux, and the Fast DDS profile it ships."""
+import os
+import pathlib
+
+from driver_harness import DriverProcess, next_domain_id, PACKAGE, RosClient
+import pytest
+
+pytestmark = pytest.mark.integration
+
+PROFILE = pathlib.Path('share') / PACKAGE / 'config' / 'fastdds_realtime.xml'
+PROFILE_PRIORITY = 50  # what config/fastdds_realtime.xml asks for its threads
+WRENCH = (0.0, 0.0, 4.0, 0.0, 0.0, 0.0)
+
+
+def threads_of(pid):
+    """Return (name, policy, rt_priority) of each thread of process pid (Linux /proc)."""
+    found = []
+    for task in pathlib.Path(f'/proc/{pid}/task').iterdir():
+        fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
+        found.append(((task / 'comm').read_text().strip(), int(fields[38]), int(fields[37])))
+    return found
+
+
+def locked_kib(pid):
+    """Return the memory the process has locked (VmLck, kB)."""
+    for line in pathlib.Path(f'/proc/{pid}/status').read_text().splitlines():
+        if line.startswith('VmLck:'):
+            return int(line.split()[1])
+    raise AssertionError(f'no VmLck in /proc/{pid}/status')
+
+
+def start(install_prefix, parameters, wrapper=()):
+    """Start the installed driver on its built-in simulator; return (driver, client)."""
+    domain_id = next_domain_id()
+    driver = DriverProcess(install_prefix, domain_id, [('port', 'sim'), *parameters],
+                           wrapper=wrapper)
+    client = RosClient(domain_id)
+    try:
+        client.wait_connected()
+    except AssertionError:
+        client.close()
+        driver.kill()
+        raise
+    return driver, client
+
+
+def test_the_built_in_simulator_runs_at_the_loop_priority_and_memory_is_locked(install_prefix):
+    driver, client = start(install_prefix, [('loop_priority', '30')])
+    try:
+        threads = threads_of(driver.process.pid)
+        # The loop thread and the simulated device's serving thread, which stands in for
+        # hardware that answers by itself.
+        assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == 2, threads
+        assert locked_kib(driver.process.pid) > 0
+        code, output = driver.interrupt()
+        assert code == 0, output
+        assert 'refused' not in output
+    finally:
+        client.close()
+        driver.kill()
+
+
+def test_the_fastdds_profile_runs_the_wrench_path_threads_at_its_priority(install_prefix):
+    profile = install_prefix / PROFILE
+    assert profile.is_file()
+    wrapper = ['env', f'FASTRTPS_DEFAULT_PROFILES_FILE={profile}']
+    driver, client = start(install_prefix, [('force_enabled_at_start', 'true')], wrapper)
+    try:
+        # A wrench from a participant without the profile still reaches the torques.
+        client.stream_wrench_until(WRENCH, 'kraft_master_base', lambda: client.joint_states and
+                                   any(client.joint_states[-1].effort))
+        threads = threads_of(driver.process.pid)
+        dds = [t for t in threads if t[0].startswith(('dds.udp.', 'dds.shm.', 'dds.ev.',
+                                                      'dds.asyn.')) and t[0] != 'dds.shm.wdog']
+        assert {name.split('.')[1] for name, _, _ in dds} == {'udp', 'shm', 'ev', 'asyn'}, dds
+        assert all(t[1:] == (os.SCHED_FIFO, PROFILE_PRIORITY) for t in dds), dds
+        code, output = driver.interrupt()
+        assert code == 0, output
+    finally:
+        client.close()
+        driver.kill()
+
+
+def test_a_refused_memory_lock_is_one_warning_with_the_fix_and_the_loop_runs_on(
+        install_prefix):
+    without_ipc_lock = ['setpriv', '--inh-caps', '-ipc_lock', '--bounding-set', '-ipc_lock',
+                        'prlimit', '--memlock=0:0']
+    driver, client = start(install_prefix, [('loop_priority', '30')], without_ipc_lock)
+    try:
+        count = len(client.joint_states)
+        client.wait(lambda: len(client.joint_states) > count + 100)
+        assert locked_kib(driver.process.pid) == 0
+        code, output = driver.interrupt()
+        assert code == 0, output
+        warnings = [line for line in output.splitlines() if 'memory lock refused' in line]
+        assert len(warnings) == 1, output
+        assert 'memlock' in warnings[0] and 'limits.conf' in warnings[0]
+    finally:
+        client.close()
+        driver.kill()
