@@ -32,7 +32,8 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
-from driver_harness import installed_env, PACKAGE  # noqa: E402, I100
+from harness import PACKAGE  # noqa: E402, I100
+from harness.driver import installed_env  # noqa: E402
 import test_faults as faults  # noqa: E402
 
 RATE_HZ = 1000.0

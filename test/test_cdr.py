@@ -4,8 +4,8 @@
 import math
 import struct
 
-from driver_harness import next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from harness.driver import next_domain_id, wait_for
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.link import cdr
 import pytest

@@ -8,8 +8,9 @@ import shlex
 import subprocess
 import sys
 
-from driver_harness import DriverProcess, next_domain_id, REPO, RosClient
 from geometry_msgs.msg import TwistStamped
+from harness import REPO
+from harness.driver import DriverProcess, next_domain_id, RosClient
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import pytest
 

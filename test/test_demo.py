@@ -15,8 +15,9 @@ import subprocess
 import sys
 import threading
 
-from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness import REPO
+from harness.driver import next_domain_id, wait_for
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS

@@ -37,9 +37,9 @@ import time
 from typing import Callable, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import (
-    DriverProcess, installed_env, next_domain_id, REPO, wait_for, WAIT_S)
 from geometry_msgs.msg import WrenchStamped
+from harness import REPO
+from harness.driver import DriverProcess, installed_env, next_domain_id, wait_for, WAIT_S
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import pytest
@@ -254,7 +254,7 @@ class Observer:
     """
     A client node in this process with only what the suite needs.
 
-    Lighter than driver_harness.RosClient, whose three 200 Hz subscriptions would compete
+    Lighter than harness.driver.RosClient, whose three 200 Hz subscriptions would compete
     with the simulator thread of this process.
     """
 

@@ -7,7 +7,7 @@ import re
 import shlex
 
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
-from driver_harness import PACKAGE, REPO
+from harness import PACKAGE, REPO
 from kraft_master_driver.simulation.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names
 import pytest

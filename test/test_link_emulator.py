@@ -9,9 +9,10 @@ import subprocess
 import threading
 import time
 
-from driver_harness import DriverProcess, executable as executable_path, installed_env
-from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness import REPO
+from harness.driver import (
+    DriverProcess, executable as executable_path, installed_env, next_domain_id, wait_for)
 from kraft_master_driver.core.delay_line import DelayLine, LinkModel
 from kraft_master_driver.nodes.link_emulator import PARAMETERS, parse_relay
 import numpy as np

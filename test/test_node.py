@@ -13,9 +13,9 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import (
-    DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for)
 from geometry_msgs.msg import WrenchStamped
+from harness.driver import (
+    DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for)
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE

@@ -11,7 +11,8 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
-from driver_harness import next_domain_id, PACKAGE, REPO
+from harness import PACKAGE, REPO
+from harness.driver import next_domain_id
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 import pytest
@@ -236,15 +237,26 @@ def test_every_import_but_ros_is_in_setup_py_install_requires():
     assert not missing, 'imports setup.py does not require:\n' + '\n'.join(sorted(missing))
 
 
+def first_party(path):
+    """
+    Return the top-level modules of this repository a test, benchmark or doc script can import.
+
+    Those on the tests' path (pytest.ini; the benchmarks add it too): test/'s modules and
+    helper packages (harness/); and those beside the file, whose directory pytest (for a test)
+    or Python (for a script) puts first on the path.
+    """
+    tests = REPO / 'test'
+    return ({init.parent.name for init in tests.glob('*/__init__.py')} |
+            {module.stem for module in [*tests.glob('*.py'), *path.parent.glob('*.py')]})
+
+
 def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
     closure = requirements_closure(REPO / 'requirements-dev.txt')
-    missing = set()
-    for directory in ('test', 'benchmarks', 'doc'):
-        files = sorted((REPO / directory).rglob('*.py'))
-        local = {p.stem for p in sorted((REPO / 'test').glob('*.py')) + files}
-        missing |= {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
-                    for path in files for group in import_groups(path, local)
-                    if not any(provided_by(closure, module) for module in group)}
+    missing = {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
+               for directory in ('test', 'benchmarks', 'doc')
+               for path in sorted((REPO / directory).rglob('*.py'))
+               for group in import_groups(path, first_party(path))
+               if not any(provided_by(closure, module) for module in group)}
     assert not missing, 'imports requirements-dev.txt does not install:\n' + '\n'.join(
         sorted(missing))
 

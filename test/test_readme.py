@@ -8,7 +8,7 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 
-from driver_harness import PACKAGE, REPO
+from harness import PACKAGE, REPO
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.operators import OPERATORS
 import pytest

@@ -11,8 +11,8 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness.driver import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, DRIVER_TOPICS, JOINT_STATE, POSE_STAMPED, typestore)
 from kraft_master_driver.bag.reader import read_topics

@@ -4,13 +4,13 @@
 Teleoperation across a 100 ms round trip with passivity on: the contact holds still.
 
 Driver and slave on two hosts (network namespaces), the link emulator between them
-(remote_session.py);
+(harness/remote_session.py);
 the simulated operator pushes the master 25 mm through the slave's stiff wall and holds.
 Asserted on physical quantities with margins wide enough for a loaded machine.
 """
-from netns import NamespacesRefused
+from harness.netns import NamespacesRefused
+from harness.remote_session import PAST, run_row
 import pytest
-from remote_session import PAST, run_row
 
 pytestmark = pytest.mark.integration
 

@@ -5,8 +5,8 @@ import collections
 import math
 import signal
 
-from driver_harness import DriverProcess, next_domain_id, RosClient, wait_for
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.nodes.slave_sim import (
     integrate_quaternion, MasterSlaveMap, MAX_STEP, SlaveArm, SlaveLimits, SoftBox, Wall)

@@ -3,7 +3,8 @@
 """The SROS2 policy: well formed (sros2's policy format 0.2.0) and naming the nodes' endpoints."""
 import xml.etree.ElementTree as ElementTree
 
-from driver_harness import DriverProcess, next_domain_id, REPO, wait_for
+from harness import REPO
+from harness.driver import DriverProcess, next_domain_id, wait_for
 import pytest
 import rclpy
 

@@ -12,8 +12,8 @@ import collections
 import math
 import threading
 
-from driver_harness import DriverProcess, next_domain_id, RosClient, WAIT_S
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness.driver import DriverProcess, next_domain_id, RosClient, WAIT_S
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.slave_sim import PARAMETERS, SlaveLimits
 from kraft_master_driver.simulation.model import Workspace

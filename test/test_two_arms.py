@@ -6,7 +6,8 @@ import io
 import re
 import shlex
 
-from driver_harness import DriverProcess, next_domain_id, PACKAGE, REPO, RosClient
+from harness import PACKAGE, REPO
+from harness.driver import DriverProcess, next_domain_id, RosClient
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.operators import OPERATORS

@@ -6,12 +6,13 @@ import signal
 import subprocess
 import sys
 
-from driver_harness import executable, installed_env, next_domain_id
-from netns import namespaces_of_this_process, NamespacesRefused, TwoHosts
+from harness import REPO
+from harness.driver import executable, installed_env, next_domain_id
+from harness.netns import namespaces_of_this_process, NamespacesRefused, TwoHosts
 import pytest
 
-HERE = pathlib.Path(__file__).resolve().parent
-PROBE = HERE / 'remote_probe.py'
+TESTS = REPO / 'test'  # the directory of the harness package, on the tests' path
+PROBE = TESTS / 'harness' / 'remote_probe.py'
 WRENCH = ('3.0', '-2.0', '4.0', '0.05', '-0.1', '0.08')
 
 
@@ -115,8 +116,8 @@ def running(pid):
 
 SIGNALLED_RUN = """
 import sys, time
-sys.path.insert(0, {here!r})
-from netns import TwoHosts
+sys.path.insert(0, {tests!r})
+from harness.netns import TwoHosts
 with TwoHosts() as (a, b):
     a.popen(['sleep', '600'])
     print(a.name, b.name, flush=True)
@@ -125,7 +126,7 @@ with TwoHosts() as (a, b):
 
 
 def test_a_terminated_run_deletes_its_namespaces_and_processes():
-    run = subprocess.Popen([sys.executable, '-c', SIGNALLED_RUN.format(here=str(HERE))],
+    run = subprocess.Popen([sys.executable, '-c', SIGNALLED_RUN.format(tests=str(TESTS))],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     names = run.stdout.readline().split()
     if not names:
@@ -160,7 +161,7 @@ def test_without_cap_net_admin_the_harness_refuses_with_the_reason():
     # A new user namespace has no capability over this network namespace.
     result = subprocess.run(
         ['unshare', '-U', sys.executable, '-c',
-         f'import sys; sys.path.insert(0, {str(HERE)!r}); import netns\n'
+         f'import sys; sys.path.insert(0, {str(TESTS)!r}); from harness import netns\n'
          'try:\n    netns.TwoHosts().__enter__()\n'
          'except netns.NamespacesRefused as error:\n    print(error)'],
         capture_output=True, text=True, timeout=60)

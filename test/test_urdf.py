@@ -3,7 +3,7 @@
 """The package's URDFs: up to date, prefixed names, collision shapes, the paper's kinematics."""
 import math
 
-from driver_harness import REPO
+from harness import REPO
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.tools.urdf_model import (
     arm_prefix, BASE_LINK, build_urdf, driver_names, GRIP_LENGTH, GRIP_LINK, LINKS, main,

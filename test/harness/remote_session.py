@@ -29,12 +29,12 @@ import sys
 import threading
 import time
 
-from driver_harness import executable, installed_env, next_domain_id
+from harness.driver import executable, installed_env, next_domain_id
+from harness.netns import TwoHosts
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
 from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
-from netns import TwoHosts
 import numpy as np
 
 RECORDER = pathlib.Path(__file__).resolve().parent / 'remote_recorder.py'

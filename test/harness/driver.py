@@ -4,13 +4,13 @@
 import collections
 import itertools
 import os
-import pathlib
 import random
 import signal
 import subprocess
 import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness import PACKAGE
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -18,8 +18,6 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
-PACKAGE = 'kraft_master_driver'
 _domain_ids = itertools.count(random.Random(os.getpid()).randrange(20, 180, 10))
 # Seconds a condition may take to come true: a start-up took over 20 s on a machine loaded
 # about 15 times over its cores. Only a failing wait lasts this long.
