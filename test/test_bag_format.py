@@ -1,12 +1,9 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """BagRecorder's bags read by independent readers, field by field against rosbag2 Jazzy's."""
-import json
-import os
-from pathlib import Path
 import sqlite3
-import sys
 
+from harness.type_hashes import generated_type_hash
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, typestore, WRENCH_STAMPED)
 from kraft_master_driver.bag.recorder import (
@@ -38,18 +35,6 @@ JAZZY_SQLITE3_TABLES = [
     'CREATE INDEX timestamp_idx ON messages (timestamp ASC)',
 ]
 SAMPLES = 1000
-
-
-def generated_type_hash(msgtype):
-    """Return the RIHS01 hash rosidl generated for `msgtype` at build time (its .json file)."""
-    package, _, name = msgtype.split('/')
-    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]
-    for prefix in filter(None, prefixes):
-        path = Path(prefix) / 'share' / package / 'msg' / f'{name}.json'
-        if path.exists():
-            hashes = json.loads(path.read_text())['type_hashes']
-            return next(h['hash_string'] for h in hashes if h['type_name'] == msgtype)
-    pytest.skip(f'the type description of {msgtype} is not installed')
 
 
 def record(path, storage):

@@ -13,6 +13,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness.driver import DriverProcess, executable, installed_env, next_domain_id, wait_for
+from harness.type_hashes import generated_type_hash
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, DRIVER_TOPICS, JOINT_STATE, POSE_STAMPED, typestore)
 from kraft_master_driver.bag.reader import read_topics
@@ -31,7 +32,6 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import JointState
-from test_bag_format import generated_type_hash
 
 pytestmark = pytest.mark.integration
 

@@ -6,7 +6,7 @@ import math
 import signal
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
-from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
+from harness.driver import next_domain_id, RosClient, slave_process, vector_parameter, wait_for
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.nodes.slave_sim import (
     integrate_quaternion, MasterSlaveMap, MAX_STEP, SlaveArm, SlaveLimits, SoftBox, Wall)
@@ -197,16 +197,6 @@ def test_quaternion_integration_composes_in_the_base_frame():
 
 
 # -- the installed node on its own ---------------------------------------------------------
-
-def slave_process(prefix, domain_id, parameters=()):
-    """Start the installed kraft_master_slave_sim with `-p name:=value` parameters."""
-    return DriverProcess(prefix, domain_id, parameters, name='kraft_master_slave_sim')
-
-
-def vector_parameter(values):
-    """Format a float array for `-p name:=[...]`."""
-    return '[' + ', '.join(f'{float(v)!r}' for v in values) + ']'
-
 
 class Master:
     """A stand-in for the driver's topics: publishes pose or rate_command, records the rest."""

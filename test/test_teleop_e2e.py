@@ -13,7 +13,8 @@ import math
 import threading
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from harness.driver import DriverProcess, next_domain_id, RosClient, WAIT_S
+from harness.driver import (
+    DriverProcess, next_domain_id, RosClient, slave_process, vector_parameter, WAIT_S)
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.slave_sim import PARAMETERS, SlaveLimits
 from kraft_master_driver.simulation.model import Workspace
@@ -21,7 +22,6 @@ from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from test_slave_sim import slave_process, vector_parameter
 
 pytestmark = pytest.mark.integration
 

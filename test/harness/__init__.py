@@ -3,9 +3,10 @@
 """
 Helpers of the tests (pytest puts test/ on the path): `from harness.driver import ...`.
 
-driver: the installed driver as a process, a client node, DDS domains. netns: two hosts as
-network namespaces. remote_session: one teleoperation session across them, with remote_probe.py
-and remote_recorder.py the scripts run inside a host. This module: where the repository is.
+driver: the installed driver and slave as processes, a client node, DDS domains. netns: two
+hosts as network namespaces. remote_session: one teleoperation session across them, with
+remote_probe.py and remote_recorder.py the scripts run inside a host. type_hashes: the message
+type hashes rosidl generated. This module: where the repository is.
 """
 import pathlib
 

@@ -1,6 +1,6 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""Test harness: the installed driver as a process, and a client node in the test process."""
+"""The installed driver and slave as processes, and a client node in the test process."""
 import collections
 import itertools
 import os
@@ -179,3 +179,13 @@ class DriverProcess:
         if self.process.poll() is None:
             self.process.kill()
             self.process.communicate(timeout=10)
+
+
+def slave_process(prefix, domain_id, parameters=()):
+    """Start the installed kraft_master_slave_sim with `-p name:=value` parameters."""
+    return DriverProcess(prefix, domain_id, parameters, name='kraft_master_slave_sim')
+
+
+def vector_parameter(values):
+    """Format a float array for `-p name:=[...]`."""
+    return '[' + ', '.join(f'{float(v)!r}' for v in values) + ']'
