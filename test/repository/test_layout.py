@@ -2,13 +2,12 @@
 # Licensed under the Apache License, Version 2.0
 """The subpackages that must run without ROS import none of it, module by module."""
 import json
-import pathlib
 import subprocess
 import sys
 
+from harness import REPO
 import pytest
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
 ROS_FREE = ('core', 'link', 'simulation', 'bag')
 
 # Run in a fresh interpreter: imports every module of one subpackage, found by pkgutil, and

@@ -4,16 +4,16 @@
 from pathlib import Path
 
 from ament_pep257.main import main
+from harness import REPO
 import pytest
 
-PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'launch', 'doc', 'setup.py')
 
 
 @pytest.mark.linter
 @pytest.mark.pep257
 def test_pep257(monkeypatch):
-    monkeypatch.chdir(PACKAGE_ROOT)
+    monkeypatch.chdir(REPO)
     paths = [name for name in CHECKED if Path(name).exists()]
     rc = main(argv=paths)
     assert rc == 0, 'Found code style errors / warnings (listed in the captured output)'

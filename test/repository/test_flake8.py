@@ -4,9 +4,9 @@
 from pathlib import Path
 
 from ament_flake8.main import main_with_errors
+from harness import REPO
 import pytest
 
-PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'launch', 'doc', 'setup.py')
 
 
@@ -14,7 +14,7 @@ CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'launch', 'doc', 'setup.
 @pytest.mark.linter
 def test_flake8(monkeypatch):
     # ament_flake8 excludes the hidden folders it finds under the working directory.
-    monkeypatch.chdir(PACKAGE_ROOT)
+    monkeypatch.chdir(REPO)
     paths = [name for name in CHECKED if Path(name).exists()]
     rc, errors = main_with_errors(argv=paths)
     assert rc == 0, f'Found {len(errors)} code style errors / warnings:\n' + '\n'.join(errors)
