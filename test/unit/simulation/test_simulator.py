@@ -2,7 +2,6 @@
 # Licensed under the Apache License, Version 2.0
 """The simulated hand controller, driven as a host would: real bytes over a real pty."""
 import os
-import pathlib
 import select
 import shutil
 import signal
@@ -10,6 +9,7 @@ import subprocess
 import sys
 import time
 
+from harness import REPO
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
 from kraft_master_driver.link.device import KmcDevice
@@ -24,7 +24,6 @@ import numpy as np
 import pytest
 import serial
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
 CODEC = get_codec('kraft-default')
 ZERO = (0,) * 5
 HOME = Workspace().home()

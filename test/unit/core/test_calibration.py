@@ -2,15 +2,15 @@
 # Licensed under the Apache License, Version 2.0
 """Pot calibration: the paper's tables, the inverse map, least squares and the YAML files."""
 import math
-from pathlib import Path
 
+from harness import REPO
 from kraft_master_driver.core import calibration
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.core.kinematics import NOMINAL_LENGTHS
 import numpy as np
 import pytest
 
-CONFIG = Path(__file__).resolve().parents[1] / 'config'
+CONFIG = REPO / 'config'
 ARMS = ('right', 'left')
 # Section 6 table, by pot number: right POT_a, POT_b, left POT_a, POT_b, th_a, th_b (deg).
 POT_TABLE = {

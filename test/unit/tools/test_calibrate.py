@@ -2,10 +2,10 @@
 # Licensed under the Apache License, Version 2.0
 """kraft_master_calibrate against a simulated arm whose true calibration is not the paper's."""
 import math
-import pathlib
 import threading
 import time
 
+from harness import REPO
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import (
     ArmCalibration, CalibrationError, read_parameter_file)
@@ -15,7 +15,7 @@ from kraft_master_driver.tools import calibrate
 import numpy as np
 import pytest
 
-REPO_CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config'
+REPO_CONFIG = REPO / 'config'
 TOLERANCE_DEG = 0.2
 # Each pot's two calibration points moved by tens of counts: lines off by degrees.
 SHIFT_A = np.array([40.0, -35.0, 25.0, -30.0, 45.0, -20.0])
