@@ -1,35 +1,25 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-Fault injection: one test per row of the fault table, against the installed driver.
+The fault suite's harness (integration/faults/), shared with benchmarks/soak.py.
 
-The installed kraft_master_node runs on a SimulatedKraftMaster in this process, watched by a
-client node here and fed by a wrench source in a separate process. Each test injects one fault
-and asserts the outcome: no crash, zero torque (or the input refused), a message in the
-driver's log, a diagnostics counter, recovery once the fault clears, and nothing lost (every
-pot frame received is published once and reaches the client). It also measures, from the
-commands the simulated device received (simulator.received, time.time_ns() stamps), the time
-to zero torque: for a lost reply, from the last torque command to the zero one that follows;
-for rejected wrenches, a killed wrench source and signals, from the fault to the zero-torque
-run that lasts; with the device unplugged, until the device's own command timeout zeroes it.
-And the time to recovery, from the moment the fault clears to the first torque command. The
-figures collect in FAULT_TABLE; after the last test of the module they are printed and written
-to fault_table.json in the pytest tmp dir.
-
-Run the suite alone with `pytest -m faults`. Run as a script, this file is the wrench source:
-it publishes WrenchStamped messages as the JSON lines on its stdin say.
+FaultSession: the installed kraft_master_node runs on a SimulatedKraftMaster in this process,
+watched by a client node here and fed by a wrench source in a separate process
+(wrench_source.py). The faults the suite and the soak test inject (link faults, rejected
+wrenches, a killed wrench source, a wrench flood) and how they are injected; the bad values of
+a parameter. Times come from the commands the simulated device received (simulator.received,
+time.time_ns() stamps); record() adds a row to FAULT_TABLE, which the suite's conftest.py
+prints and writes to fault_table.json at the end of the run.
 """
 import bisect
-import concurrent.futures
 import itertools
 import json
 import math
 import operator
 import os
+import pathlib
 import re
-import select
 import signal
-import statistics
 import subprocess
 import sys
 import threading
@@ -37,26 +27,17 @@ import time
 from typing import Callable, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import WrenchStamped
-from harness import REPO
 from harness.driver import DriverProcess, installed_env, next_domain_id, wait_for, WAIT_S
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
-import pytest
-from rcl_interfaces.msg import Parameter as ParameterMsg
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-import yaml
-
-pytestmark = [pytest.mark.faults, pytest.mark.integration]
 
 LOOP_RATE_HZ = 200.0  # low enough for the Python client to follow every message
-PERIOD_S = 1.0 / LOOP_RATE_HZ
-BASE, WRIST = PARAMETERS['base_frame'].default, PARAMETERS['wrist_frame'].default
+BASE = PARAMETERS['base_frame'].default
 WRENCH = (3.0, -2.0, 4.0, 0.05, -0.1, 0.08)  # N, N*m in the base frame: torque on every axis
 WRENCH_TIMEOUT_S = PARAMETERS['wrench_timeout'].default
 LOG_THROTTLE_NS = 1_000_000_000  # the driver's repeated warnings (no wrench, no reply): 1 a second
@@ -67,22 +48,15 @@ FLOOD_S = 3.0
 BAD_STREAM_S = 1.0  # how long a rejected input keeps streaming, more than SETTLE_S
 FAULT_S = 2.0
 GARBAGE_BYTES = 512  # per burst, a burst every ~10 ms while the flood lasts
-COUNT_LIMIT = round(max(PARAMETERS['torque_limits'].default) *
-                    max(PARAMETERS['torque_scale'].default))
-# Cycles a wrench may take from its publisher to the driver's watchdog clock on a busy machine.
-DELIVERY_SLACK_CYCLES = 10
 RECORD_LENGTH = 100_000  # commands the simulator keeps: minutes at LOOP_RATE_HZ
 FROZEN_MS = 1e9  # a stall that lasts until it is lifted
 SETTLE_S = 0.5  # time for a change to reach every counter and command, generously
-STARTUP_WORKERS = 4
 SIMULATOR_SWITCH_INTERVAL_S = 2e-4  # the GIL switch interval of this process during sessions
 CHECK_INTERVAL_S = 0.005  # spin this long between two checks of a condition
 STARTED = re.compile(r'Kraft Master on ')  # the driver's line once it runs
 LOG_LINE = re.compile(r'^\[(\w+)\] \[(\d+)\.(\d+)\] \[[^\]]*\]: (.*)$')
 DECODER_ERRORS = ('link bad_crc', 'link garbage_bytes', 'link truncated', 'link out_of_range')
-# Counters that tell why a cycle gave zero torque or ran late.
-CYCLE_COUNTERS = ('link timeouts', 'link stale_replies', 'force watchdog_trips', 'late cycles',
-                  'missed cycles')
+WRENCH_SOURCE = pathlib.Path(__file__).resolve().parent / 'wrench_source.py'
 
 SEVERAL_SOURCES = (('allow_multiple_wrench_sources', 'true'),)
 
@@ -123,19 +97,6 @@ def format_table(rows):
     lines += [f'{group}: {count} rows without times (see the JSON)'
               for group, count in groups.items()]
     return '\n'.join(lines)
-
-
-@pytest.fixture(scope='module', autouse=True)
-def fault_table(request, tmp_path_factory):
-    """After the module: print FAULT_TABLE and write it to fault_table.json in the tmp dir."""
-    yield FAULT_TABLE
-    if not FAULT_TABLE:
-        return
-    path = tmp_path_factory.getbasetemp() / 'fault_table.json'
-    path.write_text(json.dumps(FAULT_TABLE, indent=2))
-    capture = request.config.pluginmanager.getplugin('capturemanager')
-    with capture.global_and_fixture_disabled():
-        print(f'\n{format_table(FAULT_TABLE)}\nfault table written to {path}')
 
 
 # -- the processes -----------------------------------------------------------------------------
@@ -196,12 +157,12 @@ class Driver:
 
 
 class WrenchSource:
-    """This file run as a separate process that publishes wrenches as told."""
+    """wrench_source.py run as a separate process: publishes wrenches as told."""
 
     def __init__(self, env, namespace, wait):
         """Start the process in `env` and `namespace`; `wait(condition)` spins while waiting."""
         self.process = subprocess.Popen(
-            [sys.executable, __file__, '--ros-args', '-r', f'__ns:={namespace}'],
+            [sys.executable, WRENCH_SOURCE, '--ros-args', '-r', f'__ns:={namespace}'],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.replies = []
         self._wait = wait
@@ -571,11 +532,6 @@ LINK_FAULTS = [
 ]
 
 
-def link_fault_case(fault):
-    """Return the pytest.param of a link fault."""
-    return pytest.param(fault, id=fault.row)
-
-
 def hold_fault(session, fault):
     """Keep `fault` up for its duration; return when the device's own watchdog fired (ns)."""
     simulator = session.simulator
@@ -623,54 +579,6 @@ def inject_link_fault(session, fault):
     zeroing = zeroing_times_s(session.commands(fault_ns, back_ns + 1))
     return Injected(fault_ns, clear_ns, back_ns, max(zeroing, default=None),
                     'next command after a lost reply (max)')
-
-
-@pytest.fixture(scope='class')
-def link_session(install_prefix):
-    """One driver session shared by the link fault rows; each row clears its fault."""
-    session = FaultSession(install_prefix)
-    yield session
-    session.close()
-
-
-class TestLinkFaults:
-    """Faults of the serial link, injected by the simulated device."""
-
-    @pytest.mark.parametrize('fault', [link_fault_case(f) for f in LINK_FAULTS])
-    def test_link_fault(self, link_session, fault):
-        session = link_session
-        session.wait_torque()
-        before = session.diagnostics_after(time.time_ns())
-        states = session.states
-        injected = inject_link_fault(session, fault)
-        session.wait(lambda: session.states > states)
-        after = session.diagnostics_after(injected.back_ns)
-        session.assert_alive()
-
-        growth = counter_growth(before, after, fault.counters + CYCLE_COUNTERS)
-        assert sum(growth[key] for key in fault.counters) > 0, growth
-        # Zero torque on the cycle after each lost reply: at least one zero command per timeout.
-        window = session.commands(before.stamp_ns, after.stamp_ns + int(SETTLE_S * 1e9))
-        assert zero_commands(window) >= growth['link timeouts'], (zero_commands(window), growth)
-        assert (after.level, after.message) == (0, 'running')
-        if fault.link_down:
-            assert any(d.level == 2 and 'link down' in d.message for d in session.diagnostics
-                       if injected.fault_ns <= d.stamp_ns < injected.clear_ns)
-            assert after.count('link reconnects') > before.count('link reconnects')
-        faulty = session.commands(injected.fault_ns, injected.back_ns + 1)
-        record('link', fault.row, injected.safe_s, injected.recovery_s, injected.how,
-               first_zero_after_fault_ms=milliseconds(seconds_between(
-                   injected.fault_ns, session.first_command(injected.fault_ns, zero=True))),
-               falls_to_zero=len(zeroing_times_s(faulty)),
-               longest_zero_torque_ms=milliseconds(longest_zero_run_s(faulty)),
-               counters=growth, simulator=session.simulator.stats)
-        # A repeated warning comes at most once a second: a lost reply in the second before the
-        # fault (a busy machine has some) may be the one the log shows.
-        session.expect_log(injected.fault_ns - LOG_THROTTLE_NS, fault.log)
-
-    def test_nothing_lost_across_the_link_faults(self, link_session):
-        link_session.assert_alive()
-        assert link_session.assert_nothing_lost() > 0
 
 
 # -- wrench input ------------------------------------------------------------------------------
@@ -767,116 +675,7 @@ def inject_flood(session):
     }
 
 
-@pytest.fixture(scope='class')
-def wrench_session(install_prefix):
-    """
-    One driver session shared by the wrench input rows; each row restores the stream.
-
-    The killed-source row runs a second source beside the steady one, and a SIGKILLed
-    publisher stays matched until DDS notices it is gone: these rows allow several sources
-    (test_node.py tests the one-source rule).
-    """
-    session = FaultSession(install_prefix, SEVERAL_SOURCES)
-    yield session
-    session.close()
-
-
-class TestWrenchInput:
-    """Bad, late, flooding and vanishing wrench input."""
-
-    @pytest.mark.parametrize('bad', BAD_WRENCHES, ids=[b.row for b in BAD_WRENCHES])
-    def test_rejected_wrench_zeroes_torque(self, wrench_session, bad):
-        session = wrench_session
-        session.wait_torque()
-        before = session.diagnostics_after(time.time_ns())
-        injected = inject_bad_wrench(session, bad)
-        held = session.commands(injected.fault_ns + int(SETTLE_S * 1e9), injected.clear_ns)
-        assert held and zero_commands(held) == len(held), (
-            f'a rejected wrench gave torque: {len(held) - zero_commands(held)} commands')
-        after = session.diagnostics_after(injected.back_ns)
-        session.assert_alive()
-        assert after.count(bad.counter) > before.count(bad.counter)
-        assert after.count('internal errors') == 0
-        record('wrench', bad.row, injected.safe_s, injected.recovery_s, injected.how,
-               rejected=after.count(bad.counter) - before.count(bad.counter))
-        session.expect_log(injected.fault_ns, bad.log)
-
-    def test_zero_stamp_is_accepted(self, wrench_session):
-        session = wrench_session
-        session.wait_torque()
-        before = session.diagnostics_after(time.time_ns())
-        start_ns, _ = session.source.switch(SOURCE_RATE_HZ, stamp='zero')
-        session.client.spin(BAD_STREAM_S)
-        end_ns, _ = session.source.switch(SOURCE_RATE_HZ)
-        after = session.diagnostics_after(end_ns)
-        window = session.commands(start_ns, end_ns)
-        # A lost reply zeroes the next command: on a loaded machine, not the wrench's doing.
-        lost = counter_growth(before, after, ('link timeouts',))['link timeouts']
-        assert window and zero_commands(window) - lost < len(window) / 2, (
-            f'zero stamp not accepted: {zero_commands(window)} of {len(window)} commands zero, '
-            f'{lost} after a lost reply')
-        assert (after.count('force rejected_bad_timestamp') ==
-                before.count('force rejected_bad_timestamp'))
-
-    def test_wrench_flood_keeps_the_loop_and_torques_safe(self, wrench_session):
-        session = wrench_session
-        session.wait_torque()
-        before = session.diagnostics_after(time.time_ns())
-        figures = inject_flood(session)
-        after = session.diagnostics_after(time.time_ns())
-        session.assert_alive()
-        # The loop keeps going (a quarter of its rate just before catches a stalled loop; the
-        # publisher takes a core of its own, and a loaded machine slows the loop further).
-        # The torques stay within their limits, and on: the wrench is valid.
-        assert figures['loop_hz'] > 0.25 * figures['loop_hz_before'], figures
-        assert figures['largest_count'] <= COUNT_LIMIT, figures
-        growth = counter_growth(before, after, ('late cycles', 'missed cycles',
-                                                'force watchdog_trips', 'link timeouts'))
-        # A lost reply zeroes the next command: on a loaded machine, not the flood's doing.
-        assert (figures['zero_commands'] - growth['link timeouts'] <
-                figures['commands'] / 2), (figures, growth)
-        assert after.count('internal errors') == 0
-        record('wrench', 'wrench flood at 20 kHz', None, None, 'torque stays on (valid wrench)',
-               counters=growth, **figures)
-
-    def test_wrench_source_killed_mid_stream(self, wrench_session, install_prefix):
-        session = wrench_session
-        injected = inject_source_kill(
-            session, installed_env(install_prefix, session.domain_id))
-        session.assert_alive()
-        assert injected.safe_s is not None, 'torque did not stay zero after the kill'
-        # Counted in cycles, not seconds: a slow machine runs fewer cycles, never more.
-        late_torque = len(session.commands(injected.fault_ns,
-                                           injected.fault_ns + int(injected.safe_s * 1e9)))
-        bound = math.ceil(WRENCH_TIMEOUT_S / PERIOD_S) + 1 + DELIVERY_SLACK_CYCLES
-        assert late_torque <= bound, (late_torque, bound)
-        before, during = injected.before, injected.during
-        assert during.count('force watchdog_trips') > before.count('force watchdog_trips')
-        assert during.values['force state'] == 'stale'
-        record('process', 'wrench source SIGKILLed mid-stream', injected.safe_s,
-               injected.recovery_s, injected.how, torque_cycles_after_kill=late_torque)
-        # The driver logs the watchdog at most once a second: a trip in the second before the
-        # kill (a stall of the source, see inject_source_kill) may be the one the log shows.
-        session.expect_log(injected.fault_ns - LOG_THROTTLE_NS,
-                           r'stale|no wrench|watchdog')
-
-    def test_nothing_lost_across_the_wrench_faults(self, wrench_session):
-        wrench_session.assert_alive()
-        assert wrench_session.assert_nothing_lost() > 0
-
-
-# -- parameters --------------------------------------------------------------------------------
-
-
-def yaml_literal(value):
-    """Return `value` in the YAML syntax of a `-p name:=value` on the ROS command line."""
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (list, tuple)):
-        return '[' + ', '.join(yaml_literal(v) for v in value) + ']'
-    if isinstance(value, float):
-        return repr(value) if math.isfinite(value) else {'nan': '.nan'}.get(str(value), '.inf')
-    return str(value)
+# -- bad parameter values ----------------------------------------------------------------------
 
 
 def wrong_type(spec):
@@ -911,335 +710,3 @@ def bad_values(name, spec):
         cases.append(('NaN', math.nan))
     cases.append(('empty', None))
     return cases
-
-
-class StartupCase(NamedTuple):
-    """A driver start with bad parameters: it must exit 1 with a message naming `names`."""
-
-    name: str
-    parameters: tuple = ()  # (name, YAML literal) pairs for -p
-    params_file: object = None  # a parameter file as a dict
-    names: tuple = ()
-
-
-def startup_case(case):
-    """Return the pytest.param of a start-up case."""
-    return pytest.param(case, id=case.name)
-
-
-def parameter_start_cases():
-    """
-    Every parameter set to each kind of bad value at start-up.
-
-    NaN goes through the same range checks as an out-of-range value (it is tried at run
-    time); an empty value is tried once per kind of parameter (bool, int, float, str, choice,
-    list), as it takes the same path for all parameters of a kind.
-    """
-    cases, kinds_tried = [], set()
-    for name, spec in PARAMETERS.items():
-        kind_of_parameter = (type(spec.default), bool(spec.choices))
-        for kind, value in bad_values(name, spec):
-            if kind == 'NaN' or (value is None and kind_of_parameter in kinds_tried):
-                continue
-            literal = '[]' if value is None else yaml_literal(value)
-            cases.append(startup_case(
-                StartupCase(f'{name} {kind}', ((name, literal),), names=(name,))))
-        kinds_tried.add(kind_of_parameter)
-    return cases
-
-
-def calibration_file(change):
-    """config/right_arm.yaml as a dict, its calibration mapping changed by `change`."""
-    params = yaml.safe_load((REPO / 'config' / 'right_arm.yaml').read_text())
-    change(params['/**']['ros__parameters']['calibration'])
-    return params
-
-
-def calibration_cases():
-    """Calibration parameter files with a key missing, misspelt, too short, or a point twice."""
-    keys = ('pot_a', 'pot_b', 'angle_a_deg', 'angle_b_deg')
-    cases = []
-    for key in keys:
-        cases.append(startup_case(StartupCase(
-            f'calibration {key} missing', params_file=calibration_file(lambda c: c.pop(key)),
-            names=(f'calibration.{key}',))))
-        cases.append(startup_case(StartupCase(
-            f'calibration {key} with 5 values',
-            params_file=calibration_file(lambda c: c[key].pop()),
-            names=(f'calibration.{key}',))))
-    cases.append(startup_case(StartupCase(
-        'calibration pot_a misspelt', params_file=calibration_file(
-            lambda c: c.update(pot_A=c.pop('pot_a'))), names=('calibration.pot_a',))))
-    for first, second in (('pot_a', 'pot_b'), ('angle_a_deg', 'angle_b_deg')):
-        cases.append(startup_case(StartupCase(
-            f'calibration POT3 {first} == {second}', params_file=calibration_file(
-                lambda c: c[second].__setitem__(2, c[first][2])),
-            names=(f'calibration.{second}', 'POT3'))))
-    return cases
-
-
-STARTUP_CASES = parameter_start_cases() + calibration_cases()
-
-
-class StartupRuns:
-    """Runs the selected start-up cases a few at a time, once, when the first is needed."""
-
-    def __init__(self, prefix, directory, cases):
-        """Run `cases` (StartupCase) with the driver installed at `prefix`."""
-        self.prefix, self.directory, self.cases = prefix, directory, cases
-        self.results = {}
-
-    def result(self, case):
-        """Return (exit code or 'started', output, seconds) of `case`."""
-        if case.name not in self.results:
-            with concurrent.futures.ThreadPoolExecutor(STARTUP_WORKERS) as pool:
-                pending = [c for c in self.cases if c.name not in self.results] or [case]
-                for pending_case, outcome in zip(pending, pool.map(self._run, pending)):
-                    self.results[pending_case.name] = outcome
-        return self.results[case.name]
-
-    def _run(self, case):
-        params_file = None
-        if case.params_file is not None:
-            params_file = self.directory / (re.sub(r'\W+', '_', case.name) + '.yaml')
-            params_file.write_text(yaml.safe_dump(case.params_file))
-        started = time.monotonic()
-        driver = Driver(self.prefix, next_domain_id(), case.parameters, params_file=params_file)
-        try:
-            outcome = driver.started_or_exited()
-            deadline = started + WAIT_S
-            while outcome is None and time.monotonic() < deadline:
-                time.sleep(0.02)
-                outcome = driver.started_or_exited()
-        finally:
-            driver.kill()
-        return outcome, driver.output, time.monotonic() - started
-
-
-@pytest.fixture(scope='module')
-def startup_runs(install_prefix, tmp_path_factory, request):
-    """Start-up outcomes of the cases of this session's selected tests."""
-    selected = [item.callspec.params['case'] for item in request.session.items
-                if item.originalname == 'test_bad_start_up_parameters_exit_1_naming_them']
-    return StartupRuns(install_prefix, tmp_path_factory.mktemp('startup'), selected)
-
-
-@pytest.mark.parametrize('case', STARTUP_CASES)
-def test_bad_start_up_parameters_exit_1_naming_them(startup_runs, case):
-    code, output, seconds = startup_runs.result(case)
-    group = 'calibration' if case.params_file else 'start-up'
-    record(group, case.name, outcome=code, seconds=round(seconds, 2))
-    assert code == 1, f'exit {code!r}:\n{output}'
-    assert 'Traceback' not in output, output
-    for name in case.names:
-        assert name in output, output
-
-
-def run_time_cases():
-    """Parameter changes the running driver must refuse."""
-    cases = []
-    for name, spec in PARAMETERS.items():
-        if spec.read_only:
-            cases.append(pytest.param(name, 'read-only', spec.default, id=f'{name} read-only'))
-            continue
-        cases += [pytest.param(name, kind, value, id=f'{name} {kind}')
-                  for kind, value in bad_values(name, spec)]
-    return cases
-
-
-@pytest.fixture(scope='class')
-def parameter_session(install_prefix):
-    """Run a driver session for the run-time parameter rows."""
-    session = FaultSession(install_prefix)
-    yield session
-    session.close()
-
-
-def parameter_message(name, value):
-    """Return a Parameter message of `value`, typed as rclpy infers; None gives an unset one."""
-    if value is None:
-        return ParameterMsg(name=name)
-    return Parameter(name, value=value).to_parameter_msg()
-
-
-def torque_on(session, since_ns, count=20):
-    """Wait for `count` torque commands from `since_ns` on; return their median counts."""
-    def on():
-        commands = [c.counts for _, c in session.commands(since_ns) if any(c.counts)]
-        return commands[:count] if len(commands) >= count else None
-    return [statistics.median(axis) for axis in zip(*session.wait(on))]
-
-
-class TestRunTimeParameters:
-    """Bad parameter changes through the parameter service of the running driver."""
-
-    @pytest.mark.parametrize('name, kind, value', run_time_cases())
-    def test_refused_and_torque_unchanged(self, parameter_session, name, kind, value):
-        session = parameter_session
-        client = session.parameter_client()
-        torque = torque_on(session, time.time_ns())
-        (current,) = session.call(client.get_parameters([name])).values
-        result = session.call(client.set_parameters([parameter_message(name, value)])).results[0]
-        assert not result.successful, f'{name} {kind} accepted'
-        assert result.reason
-        (unchanged,) = session.call(client.get_parameters([name])).values
-        assert unchanged == current
-        later = torque_on(session, time.time_ns())
-        session.assert_alive()
-        # The held arm settles a little under its torque; a refused change must not move it.
-        assert all(abs(a - b) <= max(5.0, 0.05 * abs(a)) for a, b in zip(torque, later)), (
-            torque, later)
-        record('run time', f'{name} {kind}', outcome=result.reason)
-
-    def test_a_valid_change_is_applied(self, parameter_session):
-        """The control: force_scale 0.5 halves the torque, and 1.0 restores it."""
-        session = parameter_session
-        client = session.parameter_client()
-        torque = torque_on(session, time.time_ns())
-        for scale in (0.5, 1.0):
-            result = session.call(client.set_parameters(
-                [parameter_message('force_scale', scale)])).results[0]
-            assert result.successful, result.reason
-            session.client.spin(SETTLE_S)
-            later = torque_on(session, time.time_ns())
-            assert all(abs(scale * a - b) <= max(5.0, 0.05 * abs(a))
-                       for a, b in zip(torque, later)), (torque, later)
-
-    def test_nothing_lost_across_the_parameter_changes(self, parameter_session):
-        parameter_session.assert_alive()
-        assert parameter_session.assert_nothing_lost() > 0
-
-
-# -- process -----------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
-def test_signal_zeroes_torque_last_and_exits_0(install_prefix, sig):
-    session = FaultSession(install_prefix)
-    try:
-        session.wait_torque()
-        signal_ns = time.time_ns()
-        code = session.driver.stop(sig)
-        assert code == 0, session.driver.output
-        assert 'Traceback' not in session.driver.output, session.driver.output
-        session.wait(lambda: not any(session.commands()[-1][1].counts))
-        zero_ns = session.first_command(signal_ns, zero=True)
-        after_zero = session.commands(zero_ns)
-        assert zero_commands(after_zero) == len(after_zero), 'torque after the zero command'
-        record('process', signal.Signals(sig).name, seconds_between(signal_ns, zero_ns),
-               None, 'zero command before exit',
-               commands_after_signal=len(session.commands(signal_ns)))
-    finally:
-        session.close()
-
-
-def test_second_driver_on_the_same_port_retries_and_leaves_the_first_alone(install_prefix):
-    session = FaultSession(install_prefix)
-    second = None
-    try:
-        second_namespace = f'{session.namespace}_second'
-        second_diagnostics = session.watch(second_namespace)
-        session.wait_torque()
-        before = session.diagnostics_after(time.time_ns())
-        device_errors = session.simulator.stats['decode_errors']
-        start_ns = time.time_ns()
-        second = Driver(install_prefix, session.domain_id, [
-            ('port', session.port), ('loop_rate_hz', LOOP_RATE_HZ),
-            ('force_enabled_at_start', 'true')], namespace=second_namespace)
-        session.wait(lambda: second.log_since(start_ns, ('ERROR', 'WARN')))
-        assert re.search(r'busy|lock', second.output, re.IGNORECASE), second.output
-        first = session.diagnostics_after(start_ns, second_diagnostics)
-        assert first.level == 2, first
-        retried = session.wait(lambda: next(
-            (d for d in second_diagnostics
-             if d.count('link failed_opens') > first.count('link failed_opens')), None))
-        assert second.stop() == 0, second.output
-        end_ns = time.time_ns()
-        after = session.diagnostics_after(end_ns)
-        session.assert_alive()
-
-        # The first driver is undisturbed, as far as a second opener could disturb it: no
-        # foreign command (every command in sequence) or byte at the device, no reply bytes
-        # taken from it, no link fault; the second never got a frame.
-        window = session.commands(start_ns, end_ns)
-        sequences = [c.sequence for _, c in window]
-        assert all((b - a) % 256 == 1 for a, b in zip(sequences, sequences[1:]))
-        assert session.simulator.stats['decode_errors'] == device_errors
-        growth = counter_growth(before, after, ('link link_faults', 'link timeouts') +
-                                DECODER_ERRORS)
-        assert growth['link link_faults'] == 0, growth
-        assert sum(growth[key] for key in DECODER_ERRORS) == 0, growth
-        assert retried.count('pot frames received') == 0
-        session.assert_nothing_lost()
-        record('process', 'second driver on the same port', None, None,
-               second_failed_opens=retried.count('link failed_opens'),
-               first_counters=growth, first_zero_commands=zero_commands(window))
-    finally:
-        if second is not None:
-            second.kill()
-        session.close()
-
-
-# -- the wrench source process -----------------------------------------------------------------
-
-
-def run_wrench_source():
-    """
-    Publish WrenchStamped on `wrench` as the JSON lines on stdin say, until stdin closes.
-
-    Each line is {"rate_hz", "wrench", "frame_id", "stamp"}; prints 'ready' once the driver
-    subscribes and 'switched <time_ns> <messages published before>' as each line takes effect.
-    """
-    rclpy.init(args=sys.argv)
-    node = rclpy.create_node('fault_wrench_source')
-    publisher = node.create_publisher(
-        WrenchStamped, 'wrench', QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
-    while publisher.get_subscription_count() == 0:
-        time.sleep(0.01)
-    print('ready', flush=True)
-    message = WrenchStamped()
-    period_ns = offset_ns = published = 0
-    zero_stamp = switched = False
-    pending = b''
-    due = time.monotonic_ns()
-    while True:
-        ahead = (due - time.monotonic_ns()) / 1e9 if period_ns else 0.1
-        if select.select([0], [], [], ahead if ahead > 2e-4 else 0.0)[0]:
-            chunk = os.read(0, 4096)
-            if not chunk:
-                break
-            *lines, pending = (pending + chunk).split(b'\n')
-            for line in lines:
-                spec = json.loads(line)
-                period_ns = int(1e9 / spec['rate_hz']) if spec['rate_hz'] else 0
-                zero_stamp = spec['stamp'] == 'zero'
-                offset_ns = 0 if zero_stamp else int(spec['stamp'] * 1e9)
-                message.header.frame_id = spec['frame_id']
-                w = message.wrench
-                (w.force.x, w.force.y, w.force.z,
-                 w.torque.x, w.torque.y, w.torque.z) = spec['wrench']
-                switched, due = True, time.monotonic_ns()
-            continue
-        if not period_ns:
-            if switched:
-                print(f'switched {time.time_ns()} {published}', flush=True)
-                switched = False
-            continue
-        now = time.monotonic_ns()
-        if now < due:
-            continue
-        stamp_ns = 0 if zero_stamp else time.time_ns() + offset_ns
-        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        sent_ns = time.time_ns()
-        publisher.publish(message)
-        if switched:
-            print(f'switched {sent_ns} {published}', flush=True)
-            switched = False
-        published += 1
-        due += period_ns
-        due = max(due, now - 100_000_000)  # fallen far behind: do not burst to catch up
-    rclpy.try_shutdown()
-
-
-if __name__ == '__main__':
-    sys.exit(run_wrench_source())
