@@ -28,7 +28,7 @@ def wrench_session(install_prefix):
 
     The killed-source row runs a second source beside the steady one, and a SIGKILLed
     publisher stays matched until DDS notices it is gone: these rows allow several sources
-    (test_node.py tests the one-source rule).
+    (integration/test_node.py tests the one-source rule).
     """
     session = FaultSession(install_prefix, SEVERAL_SOURCES)
     yield session
