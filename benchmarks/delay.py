@@ -5,9 +5,9 @@
 Force reflection across a delaying, lossy link: holding contact with the stiff wall.
 
 One row per round trip, loss and passivity setting, each a fresh session of
-test/remote_session.py (two hosts as network namespaces joined by a veth pair; the driver and
-the link emulator on one, the slave on the other, the simulated device in this process on
-TCP): the operator pushes the master through the slave's wall, holds, releases.
+test/harness/remote_session.py (two hosts as network namespaces joined by a veth pair; the
+driver and the link emulator on one, the slave on the other, the simulated device in this
+process on TCP): the operator pushes the master through the slave's wall, holds, releases.
 Figures, no asserts: a table and JSON (--json).
 """
 import argparse
@@ -21,8 +21,7 @@ import tempfile
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
-from driver_harness import PACKAGE  # noqa: E402, I100
-import remote_session as session  # noqa: E402
+from harness import PACKAGE, remote_session as session  # noqa: E402, I100
 
 ROUND_TRIPS_MS = (0, 20, 50, 100, 250, 500)
 LOSSES = (0.0, 0.01, 0.1)

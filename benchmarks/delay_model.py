@@ -36,7 +36,7 @@ from kraft_master_driver.simulation.model import (  # noqa: E402
 ARM = 'right'
 LENGTHS = kinematics.LinkLengths(*kinematics.NOMINAL_LENGTHS)
 MASTER_DT, SLAVE_DT = 0.001, 0.002  # s
-WALL_BELOW, PAST = 0.03, 0.025  # m, as in test/remote_session.py
+WALL_BELOW, PAST = 0.03, 0.025  # m, as in test/harness/remote_session.py
 RAMP, HOLD, WINDOW, SETTLE = 1.0, 5.0, 2.0, 2.0  # s
 SLAVE = SlaveLimits(max_acceleration=100.0)
 

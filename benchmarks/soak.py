@@ -4,9 +4,9 @@
 """
 Soak test: the installed driver at 1 kHz for --duration seconds under random faults.
 
-The fault suite's session runs here (test/test_faults.py: the simulated device and a client
-node in this process, the driver built with colcon and the wrench source each in their own
-process). Every --fault-gap seconds on average it injects one fault drawn at random from the
+The fault suite's session runs here (test/harness/faults.py: the simulated device and a
+client node in this process, the driver built with colcon and the wrench source each in their
+own process). Every --fault-gap seconds on average it injects one fault drawn at random from the
 suite's link faults, rejected wrenches, a killed wrench source and a 20 kHz wrench flood,
 through the suite's own injection functions, and measures the time to zero torque and to
 recovery. The driver's RSS is sampled every 10 s from /proc. At the end the summary is
@@ -32,8 +32,8 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
-from driver_harness import installed_env, PACKAGE  # noqa: E402, I100
-import test_faults as faults  # noqa: E402
+from harness import faults, PACKAGE  # noqa: E402, I100
+from harness.driver import installed_env  # noqa: E402
 
 RATE_HZ = 1000.0
 RSS_PERIOD_S = 10.0

@@ -11,7 +11,7 @@ __file__ is not this file: nothing below depends on where it lies.
 project = 'kraft_master_driver'
 author = 'kraft_master_driver contributors'
 copyright = '2026, kraft_master_driver contributors'  # noqa: A001 (Sphinx's name)
-# package.xml's version (test/test_readme.py holds the two equal)
+# package.xml's version (test/repository/test_readme.py holds the two equal)
 release = version = '0.1.0'
 
 extensions = ['myst_parser']

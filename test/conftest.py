@@ -6,7 +6,7 @@ import shutil
 import subprocess
 import sys
 
-from driver_harness import PACKAGE, REPO
+from harness import PACKAGE, REPO
 import pytest
 
 # Simulated devices run as threads of this process and must answer within the driver's 10 ms

@@ -1,0 +1,16 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Helpers of the tests (pytest puts test/ on the path): `from harness.driver import ...`.
+
+driver: the installed driver and slave as processes, a client node, DDS domains. netns: two
+hosts as network namespaces. remote_session: one teleoperation session across them, with
+remote_probe.py and remote_recorder.py the scripts run inside a host. faults: the fault
+suite's session and injections (benchmarks/soak.py uses them too), with wrench_source.py the
+wrench publisher it runs as a process. type_hashes: the message type hashes rosidl generated.
+This module: where the repository is.
+"""
+import pathlib
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+PACKAGE = 'kraft_master_driver'

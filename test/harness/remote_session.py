@@ -1,0 +1,251 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Teleoperation across a delaying, lossy link, one push into the stiff wall (tests, benchmark).
+
+Two hosts (netns.TwoHosts: two network namespaces joined by a veth pair): on the master host
+the installed driver at 1 kHz on one DDS domain, driving the simulated hand controller that runs
+in this process ('hold' operator) over TCP inside the master host (not a pty: with a busy loop
+per core, the pty's kernel worker thread held the driver's poll() for up to 5 s in about a
+third of the sessions), and kraft_master_link_emulator relaying to the slave's domain with half
+the round trip each way and the given loss (with neither delay nor loss, no emulator: driver
+and slave share a domain); on the
+slave host the installed slave simulator. A recorder on each host (remote_recorder.py). The
+operator's hand pulls the master PAST m through the slave's wall (the slave follows one to one)
+over RAMP s, holds HOLD s, goes back over RAMP s and rests SETTLE s. run_row() returns the
+figures: master peak-to-peak along the wall normal over the last WINDOW s of the hold, the
+slave's largest penetration, the energy the channel generated (from both ports' observers), the
+steady force at the slave and the force the operator feels (J^T F read back from the torques
+the device received), the master-slave drift after the release, the one-way delays and losses
+each side measured.
+"""
+import collections
+import json
+import math
+import pathlib
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from harness.driver import executable, installed_env, next_domain_id
+from harness.netns import TwoHosts
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
+from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+import numpy as np
+
+RECORDER = pathlib.Path(__file__).resolve().parent / 'remote_recorder.py'
+ARM = 'right'
+HOME_THETA = Workspace().home()
+HOME = kinematics.forward(HOME_THETA, ARM)[:3, 3]
+NORMAL = np.array([0.0, 0.0, 1.0])
+WALL_BELOW = 0.03  # m from the master's home down to the wall
+PAST = 0.025  # m the operator's hand aims past the wall
+RAMP, HOLD, WINDOW, SETTLE = 1.0, 5.0, 2.0, 2.0  # s
+# The benchmark's slave: a 1 kg arm pushing with up to 100 N (see the README).
+SLAVE = {'mass': 1.0, 'max_acceleration': 100.0}
+# Pose and master_energy at 500 Hz: half the messages for the relay (one Python process).
+PUBLISH_DECIMATION = 2
+# The driver admits wrenches this much older than the emulated one-way delay.
+MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
+
+
+def actuator_target(depth):
+    """Return the actuator coordinates with the wrist `depth` m below home (shoulder, elbow)."""
+    theta = HOME_THETA.copy()
+    goal = HOME - depth * NORMAL
+    for _ in range(20):
+        pose, jacobian = kinematics.forward_and_jacobian(theta, ARM)
+        theta[:3] += np.linalg.lstsq(jacobian[:3, :3], goal - pose[:3, 3], rcond=None)[0]
+    return joints_to_actuators(theta)
+
+
+def vector(values):
+    """Format floats for `-p name:=[...]`."""
+    return '[' + ', '.join(f'{float(v)!r}' for v in values) + ']'
+
+
+def diagnostics_values(records, since):
+    """Return {key: [float values]} of the diagnostics received after `since`."""
+    values = collections.defaultdict(list)
+    for t, items in records:
+        if t >= since:
+            for key, value in items.items():
+                try:
+                    values[key].append(float(value))
+                except ValueError:
+                    pass
+    return values
+
+
+def start(host, prefix, domain_id, name, parameters):
+    """Start installed executable `name` in `host` with `-p` parameters."""
+    command = [executable(prefix, name), '--ros-args']
+    for parameter, value in parameters:
+        command += ['-p', f'{parameter}:={value}']
+    return host.popen(command, env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
+                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+class Recorder:
+    """remote_recorder.py running in a host; records() stops it and returns what it got."""
+
+    def __init__(self, host, prefix, domain_id, topics):
+        """Start recording `topics` on domain_id in `host`."""
+        self.topics = topics
+        self.process = host.popen(
+            [sys.executable, RECORDER, *topics],
+            env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
+            stdout=subprocess.PIPE, text=True)
+        assert self.process.stdout.readline().strip() == 'ready'
+        self.first = set()
+        threading.Thread(target=self._read_firsts, daemon=True).start()
+
+    def _read_firsts(self):
+        for line in self.process.stdout:
+            if not line.startswith('first '):
+                self.output = line
+                return
+            self.first.add(line.split()[1])
+
+    def records(self):
+        """Stop the recorder; return {topic: [[receipt time, values...], ...]}."""
+        self.process.send_signal(signal.SIGINT)
+        self.process.wait(timeout=60)
+        deadline = time.monotonic() + 10.0
+        while not hasattr(self, 'output') and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return json.loads(self.output)
+
+
+def run_row(prefix, round_trip_ms, loss, passivity, seed):
+    """Run one session on two hosts; return its figures (NamespacesRefused if not allowed)."""
+    simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000, transport='tcp')
+    samples = []
+    sampling = threading.Event()
+
+    def sample():
+        scale = np.array(DEFAULT_TORQUE_SCALE, dtype=float)
+        while not sampling.wait(0.002):
+            theta = simulator.joint_angles()
+            counts = np.array(simulator.received[-1][1].counts if simulator.received else [0] * 5)
+            samples.append((time.monotonic(), theta, counts / scale))
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    master_domain = next_domain_id()
+    # No delay and no loss to emulate: driver and slave talk directly across the veth, on one
+    # domain, so that the latencies are the network's and DDS's, not the relay's.
+    direct = round_trip_ms == 0 and loss == 0
+    slave_domain = master_domain if direct else next_domain_id()
+    wall_point = HOME - WALL_BELOW * NORMAL
+    on = 'true' if passivity else 'false'
+    one_way = round_trip_ms / 2e3
+    try:
+        with TwoHosts() as (master_host, slave_host):
+            with master_host.entered():
+                port = simulator.start()
+            start(master_host, prefix, master_domain, 'kraft_master_node', [
+                ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
+                ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
+                ('passivity', on), ('max_wrench_age', MAX_WRENCH_AGE_S + one_way)])
+            if not direct:
+                start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
+                    ('slave_domain_id', slave_domain), ('seed', seed),
+                    ('to_slave.topics', "['pose', 'master_energy']"),
+                    ('to_master.topics', "['wrench', 'slave_energy']"),
+                    ('to_slave.delay', one_way), ('to_master.delay', one_way),
+                    ('to_slave.loss', loss), ('to_master.loss', loss)])
+            start(slave_host, prefix, slave_domain, 'kraft_master_slave_sim', [
+                ('centre_at_start', 'false'), ('centre', vector(HOME)),
+                ('offset', vector(HOME)), ('box.stiffness', 0.0),
+                ('wall.point', vector(wall_point)), ('wall.normal', vector(NORMAL)),
+                ('passivity', on), *((name, float(value)) for name, value in SLAVE.items())])
+            master = Recorder(master_host, prefix, master_domain,
+                              ('master_energy', 'diagnostics'))
+            far = Recorder(slave_host, prefix, slave_domain,
+                           ('slave_pose', 'wrench', 'slave_energy', 'diagnostics'))
+            deadline = time.monotonic() + 90.0
+            while not ({'slave_pose', 'slave_energy'} <= far.first
+                       and 'master_energy' in master.first):
+                assert time.monotonic() < deadline, 'driver, emulator or slave did not start'
+                time.sleep(0.05)
+            sampler.start()
+            marks = operate(simulator)
+            sampling.set()
+            sampler.join()
+            return figures(samples, master.records(), far.records(), marks, wall_point)
+    finally:
+        sampling.set()
+        simulator.stop()
+
+
+def operate(simulator):
+    """Push the master through the wall, hold, release, rest; return the phases' start times."""
+    home, pushed = joints_to_actuators(HOME_THETA), actuator_target(WALL_BELOW + PAST)
+    marks = {}
+    for phase, start_at, end, seconds in (('push', home, pushed, RAMP),
+                                          ('hold', pushed, pushed, HOLD),
+                                          ('release', pushed, home, RAMP),
+                                          ('settle', home, home, SETTLE)):
+        marks[phase] = t0 = time.monotonic()
+        while (elapsed := time.monotonic() - t0) < seconds:
+            blend = 0.5 - 0.5 * math.cos(math.pi * elapsed / seconds)
+            simulator.hold_at(start_at + blend * (end - start_at))
+            time.sleep(0.01)
+    marks['end'] = time.monotonic()
+    return marks
+
+
+def figures(samples, master, far, marks, wall_point):
+    """Return the row's figures from what was recorded."""
+    times = np.array([s[0] for s in samples])
+    thetas = np.array([s[1] for s in samples])
+    positions = kinematics.forward(thetas, ARM)[:, :3, 3]
+    depths = (wall_point - positions) @ NORMAL
+    window = (times >= marks['release'] - WINDOW) & (times < marks['release'])
+    felt = []
+    for theta, (_, _, torques) in zip(thetas[window], np.array(samples, dtype=object)[window]):
+        joint = np.array([torques[0], torques[1] + torques[2], *torques[2:]])
+        jacobian = kinematics.jacobian(theta, ARM)
+        felt.append(np.linalg.lstsq(jacobian[:3, :5].T, joint, rcond=None)[0] @ NORMAL)
+    slave_at = np.array([r[1:] for r in far['slave_pose']])
+    slave_depth = float(np.max((wall_point - slave_at) @ NORMAL))
+    slave_force = [np.array(r[1:]) @ NORMAL for r in far['wrench']
+                   if marks['release'] - WINDOW <= r[0] < marks['release']]
+    energies = (master['master_energy'][-1][1:], far['slave_energy'][-1][1:])
+    generated = sum(e[1] for e in energies) - sum(e[0] for e in energies)
+    drift = np.linalg.norm(slave_at[-1] - positions[-1])
+    ours = diagnostics_values(master['diagnostics'], marks['hold'])
+    theirs = diagnostics_values(far['diagnostics'], marks['hold'])
+    force_at_slave = float(np.mean(slave_force)) if slave_force else math.nan
+    force_felt = float(np.mean(felt)) if felt else math.nan
+    return {
+        'master_pp_mm': 1e3 * float(np.ptp(depths[window])),
+        'master_depth_mm': 1e3 * float(np.mean(depths[window])),
+        'slave_penetration_mm': 1e3 * slave_depth,
+        'energy_generated_j': float(generated),
+        'dissipated_master_j': float(energies[0][2]),
+        'dissipated_slave_j': float(energies[1][2]),
+        'force_slave_n': force_at_slave,
+        'force_felt_n': force_felt,
+        'felt_ratio': force_felt / force_at_slave if force_at_slave else math.nan,
+        'drift_mm': 1e3 * float(drift),
+        'pose_to_slave_median_ms': _median(theirs['master to slave delay median (ms)']),
+        'pose_to_slave_p99_ms': _largest(theirs['master to slave delay p99 (ms)']),
+        'wrench_to_driver_median_ms': _median(ours['slave to master delay median (ms)']),
+        'wrench_to_driver_p99_ms': _largest(ours['slave to master delay p99 (ms)']),
+        'loss_to_slave_pct': _median(theirs['master to slave loss (%)']),
+        'loss_to_master_pct': _median(ours['slave to master loss (%)']),
+    }
+
+
+def _median(values):
+    return float(np.median(values)) if values else math.nan
+
+
+def _largest(values):
+    return float(np.max(values)) if values else math.nan

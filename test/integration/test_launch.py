@@ -1,0 +1,191 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The launch files: arguments, the two-arm names, checks before any process (needs launch_ros)."""
+import importlib.util
+import os
+import re
+import shlex
+
+from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+from harness import PACKAGE, REPO
+from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.tools.urdf_model import driver_names
+import pytest
+
+NOT_HERE = ('launch_ros cannot be installed on this machine: it is not on PyPI (it comes with '
+            'a ROS 2 install; run these tests there)')
+launch = pytest.importorskip('launch', reason=NOT_HERE)
+launch_ros_actions = pytest.importorskip('launch_ros.actions', reason=NOT_HERE)
+launch_ros_utilities = pytest.importorskip('launch_ros.utilities', reason=NOT_HERE)
+
+LAUNCH_DIR = REPO / 'launch'
+SYSTEM_PREFIXES = os.environ.get('AMENT_PREFIX_PATH', '')
+
+
+def load(file_name):
+    """Import a launch file as a module."""
+    spec = importlib.util.spec_from_file_location(file_name.replace('.', '_'),
+                                                  LAUNCH_DIR / file_name)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def expand(description, **arguments):
+    """Visit the top-level actions with `arguments` set; return the context and what they make."""
+    context = launch.LaunchContext()
+    context.launch_configurations.update(arguments)
+    produced = []
+    for entity in description.entities:
+        produced += entity.visit(context) or []
+    return context, produced
+
+
+def start_in_launch_order(description, started, **arguments):
+    """
+    Visit depth-first, in the order the launch service does, with `arguments` set.
+
+    Processes (nodes included) are appended to `started` where the launch service would start
+    them, and not visited.
+    """
+    context = launch.LaunchContext()
+    context.launch_configurations.update(arguments)
+
+    def visit(entity):
+        if isinstance(entity, launch.actions.ExecuteProcess):
+            started.append(entity)
+            return
+        for child in entity.visit(context) or []:
+            visit(child)
+
+    visit(description)
+
+
+def declared(description):
+    """Return the description's launch arguments by name."""
+    return {a.name: a for a in description.entities
+            if isinstance(a, launch.actions.DeclareLaunchArgument)}
+
+
+def node_parameters(context, node):
+    """Return the parameter files and the merged name/value parameters a Node passes."""
+    evaluated = launch_ros_utilities.evaluate_parameters(context, node._Node__parameters)
+    files = [str(p) for p in evaluated if not isinstance(p, dict)]
+    values = {k: v for p in evaluated if isinstance(p, dict) for k, v in p.items()}
+    return files, values
+
+
+@pytest.fixture
+def installed_share(install_prefix, monkeypatch):
+    """Make only the installed package findable, as a workspace sourced on its own does."""
+    monkeypatch.setenv('AMENT_PREFIX_PATH', str(install_prefix))
+    assert (install_prefix / 'share' / PACKAGE / 'launch' / 'kraft_master.launch.py').exists(), (
+        'launch/ and urdf/ are not installed: check data_files in setup.py')
+    return install_prefix / 'share' / PACKAGE
+
+
+@pytest.mark.parametrize('file_name, arguments, operator', [
+    ('kraft_master.launch.py', {'arms', 'rsp', 'right_port', 'left_port', 'force_enabled',
+                                'right_params_file', 'left_params_file'}, 'sim_operator'),
+    ('teleop_demo.launch.py', {'arm', 'mode', 'rsp'}, 'operator'),
+])
+def test_launch_description_declares_its_arguments(installed_share, file_name, arguments,
+                                                   operator):
+    description = load(file_name).generate_launch_description()
+    assert isinstance(description, launch.LaunchDescription)
+    assert arguments | {operator} <= set(declared(description))
+    assert list(declared(description)[operator].choices) == list(OPERATORS)
+
+
+def readme_launch_commands():
+    """Return (launch file, {argument: value}) of each `ros2 launch` line of README and doc/."""
+    pages = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]
+    blocks = [block for page in pages for block in re.findall(
+        r'```\n(.*?)```', page.read_text().replace('\\\n', ' '), re.DOTALL)]
+    commands = []
+    for block in blocks:
+        for line in block.splitlines():
+            if line.startswith(f'ros2 launch {PACKAGE} '):
+                tokens = shlex.split(line, comments=True)
+                commands.append((tokens[3], dict(t.split(':=', 1) for t in tokens[4:])))
+    return commands
+
+
+def test_readme_launch_commands_use_declared_arguments_and_choices(installed_share):
+    commands = readme_launch_commands()
+    assert {file_name for file_name, _ in commands} == {
+        'kraft_master.launch.py', 'teleop_demo.launch.py'}
+    for file_name, arguments in commands:
+        declarations = declared(load(file_name).generate_launch_description())
+        for name, value in arguments.items():
+            assert name in declarations, f'{file_name} has no argument {name}'
+            assert not declarations[name].choices or value in declarations[name].choices
+
+
+def test_each_driver_gets_its_params_file_and_the_arms_names(installed_share):
+    description = load('kraft_master.launch.py').generate_launch_description()
+    context, nodes = expand(description, arms='both', rsp='false', sim_operator='push')
+    assert [(node.node_package, node.node_executable) for node in nodes] == [
+        (PACKAGE, 'kraft_master_node')] * 2
+    for arm, node in zip(('right', 'left'), nodes):
+        files, values = node_parameters(context, node)
+        assert files == [str(installed_share / 'config' / f'{arm}_arm.yaml')]
+        assert {k: values[k] for k in driver_names(arm)} == driver_names(arm)
+        assert values['sim_operator'] == 'push'
+
+
+def test_params_file_argument_replaces_the_shipped_one(installed_share, tmp_path):
+    calibrated = tmp_path / 'right_calibrated.yaml'
+    calibrated.write_text((installed_share / 'config' / 'right_arm.yaml').read_text())
+    description = load('kraft_master.launch.py').generate_launch_description()
+    context, (node,) = expand(description, right_params_file=str(calibrated))
+    assert node_parameters(context, node)[0] == [str(calibrated)]
+
+
+@pytest.mark.parametrize('file_name, message', [
+    ('left_arm.yaml', 'calibrates the left arm, not the right arm'),
+    ('does_not_exist.yaml', 'cannot read'),
+])
+def test_a_wrong_params_file_stops_the_launch_before_any_node(installed_share, file_name,
+                                                              message):
+    module = load('kraft_master.launch.py')
+    with pytest.raises(module.LaunchCheckError, match=message):
+        expand(module.generate_launch_description(), arms='both',
+               right_params_file=str(installed_share / 'config' / file_name))
+
+
+def test_rsp_without_robot_state_publisher_stops_the_launch_before_any_process(installed_share):
+    with pytest.raises(PackageNotFoundError):
+        get_package_prefix('robot_state_publisher')
+    for file_name, arguments in (('kraft_master.launch.py', {'arms': 'both'}),
+                                 ('teleop_demo.launch.py', {})):
+        started = []
+        with pytest.raises(Exception, match='needs the ROS package robot_state_publisher'):
+            start_in_launch_order(load(file_name).generate_launch_description(), started,
+                                  rsp='true', force_enabled='true', **arguments)
+        assert started == [], file_name
+
+
+def test_rsp_adds_a_robot_state_publisher_per_arm(installed_share, install_prefix,
+                                                  monkeypatch):
+    monkeypatch.setenv('AMENT_PREFIX_PATH', os.pathsep.join(
+        filter(None, [str(install_prefix), SYSTEM_PREFIXES])))
+    try:
+        get_package_prefix('robot_state_publisher')
+    except PackageNotFoundError:
+        pytest.skip('robot_state_publisher is not installed here (C++, not on PyPI)')
+    description = load('kraft_master.launch.py').generate_launch_description()
+    _, nodes = expand(description, arms='both', rsp='true')
+    assert [(node.node_package, node.node_executable) for node in nodes] == [
+        (PACKAGE, 'kraft_master_node'), ('robot_state_publisher', 'robot_state_publisher')] * 2
+
+
+@pytest.mark.parametrize('mode, count', [('position', 2), ('rate', 3)])
+def test_teleop_demo_includes_the_driver_and_starts_the_slave(installed_share, mode, count):
+    context, actions = expand(load('teleop_demo.launch.py').generate_launch_description(),
+                              mode=mode)
+    assert len(actions) == count
+    assert isinstance(actions[0], launch.actions.IncludeLaunchDescription)
+    slave = actions[1]
+    assert (slave.node_package, slave.node_executable) == (PACKAGE, 'kraft_master_slave_sim')
+    assert node_parameters(context, slave)[1]['base_frame'] == driver_names('right')['base_frame']

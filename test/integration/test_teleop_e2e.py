@@ -1,0 +1,248 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Teleoperation end to end: simulated device, installed driver and installed slave simulator.
+
+The simulated hand controller runs in this process behind a real pseudo-terminal; the driver
+and the slave are separate processes talking over DDS. The slave follows the master's wrist
+one to one (centre and offset zero), and its stiff wall is placed across the directions in
+which the simulated operator pushes the master.
+"""
+import collections
+import math
+import threading
+
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness.driver import (
+    DriverProcess, next_domain_id, RosClient, slave_process, vector_parameter, WAIT_S)
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.nodes.slave_sim import PARAMETERS, SlaveLimits
+from kraft_master_driver.simulation.model import Workspace
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+import numpy as np
+import pytest
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+pytestmark = pytest.mark.integration
+
+ARM = 'right'
+BASE = 'kraft_master_base'
+LOOP_RATE_HZ = 200.0
+FORCE_SCALE = 0.1  # keeps the torques of impacts below the driver's torque_limits (2 N*m)
+SWEEP_PERIOD = 2.0  # s per joint of the simulated operator's sweep
+HOME = kinematics.forward(Workspace().home(), ARM)[:3, 3]
+# At home, th1 moves the wrist mostly along +y and th2, th3 along +z: a wall across (0, 1, 1)
+# is pushed into by the first half of each of their sweeps.
+NORMAL = -np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0)
+WALL_STIFFNESS = PARAMETERS['wall.stiffness'][0]
+LIMITS = SlaveLimits()
+PENETRATION_TOLERANCE = 0.003  # m
+TORQUE_RESOLUTION = 1.5e-3  # N*m: the device's 1 mN*m counts, on th2 the sum of two
+
+
+def depth(points, wall_point):
+    """Return how deep (m) points (N, 3) are behind the wall; negative in free space."""
+    return (wall_point - np.asarray(points)) @ NORMAL
+
+
+def xyz(vector):
+    """Return a geometry_msgs Point or Vector3 as an array."""
+    return np.array([vector.x, vector.y, vector.z])
+
+
+def seconds(stamp):
+    """Return a header stamp in seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+class Teleoperation:
+    """The simulated device here, driver and slave as processes, a client recording all."""
+
+    def __init__(self, prefix, operator, home_depth):
+        """Start everything with the wall `home_depth` m in front of (< 0) or behind home."""
+        self.wall_point = HOME + home_depth * NORMAL
+        self.domain_id = domain_id = next_domain_id()
+        self.simulator = SimulatedKraftMaster(arm=ARM, operator=operator,
+                                              operator_period=SWEEP_PERIOD)
+        port = self.simulator.start()
+        self.driver = DriverProcess(prefix, domain_id, [
+            ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
+            ('loop_rate_hz', LOOP_RATE_HZ), ('force_scale', FORCE_SCALE)])
+        self.slave = slave_process(prefix, domain_id, [
+            ('centre', '[0.0, 0.0, 0.0]'), ('box.stiffness', '0.0'),
+            ('wall.point', vector_parameter(self.wall_point)),
+            ('wall.normal', vector_parameter(NORMAL))])
+        self.client = RosClient(domain_id, history=5000)
+        # Sampled from the start: the client may take seconds to discover the slave (a missed
+        # DDS announcement waits for the next one), and the operator does not wait for it.
+        self.true_master_depths = []
+        self._sampling = threading.Event()
+        self._sampler = threading.Thread(target=self._sample_true_depths, daemon=True)
+        self._sampler.start()
+        # Best effort: a reliable reader that misses the first samples while discovery
+        # completes holds every later one back until the writer's next heartbeat (3 s in Fast
+        # DDS), longer than some of these tests run.
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.wrenches = collections.deque(maxlen=5000)
+        self.slave_poses = collections.deque(maxlen=5000)
+        self.client.node.create_subscription(
+            WrenchStamped, 'wrench', lambda msg: self.wrenches.append(msg), qos)
+        self.client.node.create_subscription(
+            PoseStamped, 'slave_pose', lambda msg: self.slave_poses.append(msg), qos)
+        try:
+            self.client.wait(lambda: self.client.joint_states and self.slave_poses)
+        except AssertionError:
+            outputs = []
+            for started in (self.driver, self.slave):
+                started.process.kill()
+                outputs.append(started.process.communicate(timeout=10)[0])
+            self.close()
+            raise AssertionError('driver or slave did not start:\n' + '\n'.join(outputs))
+
+    def _sample_true_depths(self):
+        """Record the device's true wrist depth every 2 ms until close()."""
+        while not self._sampling.wait(0.002):
+            theta = self.simulator.joint_angles()
+            self.true_master_depths.append(
+                depth(kinematics.forward(theta, ARM)[:3, 3], self.wall_point))
+
+    def wait(self, condition, timeout=WAIT_S):
+        """Spin until `condition()` holds."""
+        return self.client.wait(condition, timeout)
+
+    def assert_alone(self):
+        """Fail clearly if another test's nodes share this DDS domain (they would mix in)."""
+        node = self.client.node
+        publishers = {topic: node.count_publishers(topic)
+                      for topic in ('pose', 'joint_states', 'slave_pose', 'wrench')}
+        assert publishers == {'pose': 1, 'joint_states': 1, 'slave_pose': 1, 'wrench': 1}, (
+            f'publishers on domain {self.domain_id}: {publishers}')
+
+    def master_depths(self):
+        """Return the depth behind the wall of the master's wrist for each joint state."""
+        positions = np.array([s.position for s in self.client.joint_states])
+        return depth(kinematics.forward(positions, ARM)[:, :3, 3], self.wall_point)
+
+    def slave_depths(self):
+        """Return the depth behind the wall of each recorded slave pose."""
+        return depth([xyz(p.pose.position) for p in self.slave_poses], self.wall_point)
+
+    def forces(self):
+        """Return the recorded wrench forces, an (N, 3) array in the master's base frame."""
+        return np.array([xyz(w.wrench.force) for w in self.wrenches])
+
+    def device_torque(self):
+        """Return the torque counts of the newest command the device received."""
+        return self.simulator.received[-1][1].counts
+
+    def close(self):
+        """Stop everything, whatever state the test left it in."""
+        self._sampling.set()
+        self._sampler.join()
+        self.client.close()
+        self.slave.kill()
+        self.driver.kill()
+        self.simulator.stop()
+
+
+@pytest.fixture
+def sweeping(install_prefix):
+    """Yield a session: the operator sweeps each joint in turn, the wall 15 mm from home."""
+    running = Teleoperation(install_prefix, 'sweep', home_depth=-0.015)
+    yield running
+    running.close()
+
+
+@pytest.fixture
+def pressing(install_prefix):
+    """Yield a session: the operator holds the master 10 mm behind the wall."""
+    running = Teleoperation(install_prefix, 'hold', home_depth=0.010)
+    yield running
+    running.close()
+
+
+def implied_force(jacobian, effort):
+    """Return the pure force F (3,) with effort = J^T (F, 0) on th1..th5 (least squares)."""
+    return np.linalg.lstsq(jacobian[:3, :5].T, np.asarray(effort)[:5], rcond=None)[0]
+
+
+def contact_states(client):
+    """Return the recorded joint states with a commanded torque, each with the one before."""
+    states = list(client.joint_states)
+    return [(previous, state) for previous, state in zip(states, states[1:])
+            if any(state.effort)]
+
+
+def test_slave_stops_at_the_wall_and_the_master_is_pushed_back(sweeping):
+    client = sweeping.client
+    # Contacts until the master has felt the wall for a while and the client has seen the
+    # slave at the wall, then a release.
+    sweeping.wait(lambda: len(contact_states(client)) >= 20 and sweeping.slave_poses
+                  and sweeping.slave_depths().max() > 0.0, timeout=40.0)
+    sweeping.wait(lambda: sweeping.master_depths()[-1] < 0.0
+                  and not np.any(sweeping.forces()[-1]))
+
+    sweeping.assert_alone()
+    slave_depths, master_depth = sweeping.slave_depths(), max(sweeping.true_master_depths)
+    print(f'deepest: master {1e3 * master_depth:.1f} mm, slave {1e3 * slave_depths.max():.2f} mm')
+    assert master_depth > 0.02, 'the operator pushed the master through the wall'
+    assert 0.0 < slave_depths.max() < PENETRATION_TOLERANCE
+
+    # The wrench: in the base frame, a pure force along the wall's normal, never pulling.
+    assert {w.header.frame_id for w in sweeping.wrenches} == {BASE}
+    assert not any(np.any(xyz(w.wrench.torque)) for w in sweeping.wrenches)
+    forces = sweeping.forces()
+    along = forces @ NORMAL
+    assert along.min() >= 0.0 and along.max() > 1.0
+    np.testing.assert_allclose(forces, np.outer(along, NORMAL), atol=1e-9)
+    by_stamp = {(w.header.stamp.sec, w.header.stamp.nanosec): xyz(w.wrench.force)
+                for w in sweeping.wrenches}
+    for pose, slave_depth in zip(sweeping.slave_poses, slave_depths):
+        force = by_stamp.get((pose.header.stamp.sec, pose.header.stamp.nanosec))
+        if force is not None and slave_depth <= 0.0:
+            assert not np.any(force), 'a force out of contact'
+
+    # The master's torques are J^T (force_scale F, 0) for a force F out of the wall: the
+    # driver computed them with the Jacobian of the sample before. Torques of a few counts
+    # say little about a direction. (Their magnitude is checked while pressing, below: here
+    # the client may miss the wrench the driver used.)
+    checked = 0
+    for previous, state in contact_states(client):
+        if np.abs(state.effort).max() < 20 * TORQUE_RESOLUTION:
+            continue
+        force = implied_force(kinematics.jacobian(previous.position, ARM), state.effort)
+        assert force @ NORMAL > 0.0, 'the torques must push the wrist out of the wall'
+        assert np.linalg.norm(np.cross(force, NORMAL)) < 0.05 * np.linalg.norm(force) + 0.01
+        checked += 1
+    assert checked >= 10
+
+
+def test_pressing_on_the_wall_then_the_watchdog_when_the_slave_dies(pressing):
+    client = pressing.client
+
+    def steady():
+        forces = pressing.forces()[-25:]
+        return len(forces) == 25 and np.any(forces) and np.ptp(forces, axis=0).max() < 1e-6
+
+    client.wait(steady)
+    pressing.assert_alone()
+    force = pressing.forces()[-1]
+    # The slave pushes with all it has, mass * max_acceleration, and the wall holds it.
+    np.testing.assert_allclose(force, LIMITS.mass * LIMITS.max_acceleration * NORMAL, atol=1e-6)
+    slave_depth = pressing.slave_depths()[-1]
+    assert slave_depth == pytest.approx(np.linalg.norm(force) / WALL_STIFFNESS, rel=1e-3)
+    print(f'pressing: slave {1e3 * slave_depth:.3f} mm deep, master '
+          f'{1e3 * pressing.master_depths()[-1]:.1f} mm deep')
+
+    client.wait(lambda: any(client.joint_states[-1].effort))
+    state = client.joint_states[-1]
+    expected = kinematics.jacobian(state.position, ARM).T @ np.concatenate(
+        [FORCE_SCALE * force, np.zeros(3)])
+    np.testing.assert_allclose(state.effort[:5], expected[:5], atol=TORQUE_RESOLUTION)
+    assert np.abs(expected).max() > 0.05
+    client.wait(lambda: any(pressing.device_torque()))
+
+    pressing.slave.kill()
+    client.wait(lambda: not any(pressing.device_torque())
+                and not any(client.joint_states[-1].effort))
+    assert pressing.master_depths()[-1] > 0.0, 'still behind the wall: only the watchdog acted'
