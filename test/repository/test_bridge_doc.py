@@ -3,7 +3,7 @@
 """doc/bridge.md says what kraft_master_teleop does: its parameters and its safety tests."""
 import re
 
-from driver_harness import REPO
+from harness import REPO
 from kraft_master_driver.nodes.teleop import PARAMETERS
 import pytest
 
@@ -45,7 +45,7 @@ def test_the_table_has_no_stale_parameter():
 def test_every_test_the_page_names_exists():
     named = set(re.findall(r'`(test_\w+)`', PAGE))
     defined = set()
-    for name in ('test_bridge_core.py', 'test_teleop_node.py'):
+    for name in ('test_teleoperation.py', 'test_teleop_node.py'):
         for path in (REPO / 'test').rglob(name):  # wherever the test files are moved
             defined |= set(re.findall(r'^def (test_\w+)', path.read_text(), re.MULTILINE))
     assert named and named <= defined, named - defined

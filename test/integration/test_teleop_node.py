@@ -4,8 +4,8 @@
 import collections
 import math
 
-from driver_harness import DriverProcess, next_domain_id, RosClient, wait_for
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

@@ -4,7 +4,8 @@
 import os
 import pathlib
 
-from driver_harness import DriverProcess, next_domain_id, PACKAGE, RosClient
+from harness import PACKAGE
+from harness.driver import DriverProcess, next_domain_id, RosClient
 import pytest
 
 pytestmark = pytest.mark.integration
