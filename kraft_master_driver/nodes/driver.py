@@ -71,7 +71,27 @@ class KraftMasterNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
         self._errors_reported = {}
 
-        self.simulator = None
+        self.simulator = self.device = self.loop = self._thread = None
+        try:
+            self._start_device()
+        except BaseException:
+            # A stop signal during start-up: what was started is stopped as on any stop.
+            self.stop()
+            raise
+        force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
+        if self.device.link_up:
+            self.get_logger().info(
+                f'{self.arm} Kraft Master on {self.config["port"]} at '
+                f'{self.config["loop_rate_hz"]:g} Hz; force output {force}')
+        else:
+            self.get_logger().warning(
+                f'{self.arm} Kraft Master on {self.config["port"]}: {self.loop.link_state()}; '
+                'retrying')
+
+    # -- set-up --------------------------------------------------------------------------
+
+    def _start_device(self):
+        """Start the simulator if asked, open the device and start the loop thread."""
         port = self.config['port']
         if port == SIM_PORT:
             port = self._start_simulator()
@@ -93,21 +113,9 @@ class KraftMasterNode(Node):
             rate_hz=self.config['loop_rate_hz'], take_inputs=self.inputs.take,
             publish_decimation=self.config['publish_decimation'],
             priority=self.config['loop_priority'], keep_running=self.context.ok)
-        # Not a daemon: the interpreter waits for the loop to zero the torques on its way out,
-        # even when a signal ends the process before this constructor returns.
+        # Not a daemon: the interpreter waits for the loop to zero the torques on its way out.
         self._thread = threading.Thread(target=self.loop.run, name='kraft_master_loop')
         self._thread.start()
-        force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
-        if self.device.link_up:
-            self.get_logger().info(
-                f'{self.arm} Kraft Master on {self.config["port"]} at '
-                f'{self.config["loop_rate_hz"]:g} Hz; force output {force}')
-        else:
-            self.get_logger().warning(
-                f'{self.arm} Kraft Master on {self.config["port"]}: {self.loop.link_state()}; '
-                'retrying')
-
-    # -- set-up --------------------------------------------------------------------------
 
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
@@ -240,10 +248,12 @@ class KraftMasterNode(Node):
 
     def stop(self):
         """Stop the loop thread, write zero torques, close the port and the simulator."""
-        self.loop.stop()
-        if self._thread.is_alive():
+        if self.loop is not None:
+            self.loop.stop()
+        if self._thread is not None and self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        self.device.close()
+        if self.device is not None:
+            self.device.close()
         if self.simulator is not None:
             self.simulator.stop()
 
