@@ -208,8 +208,10 @@ class LinkEmulatorNode(Node):
         if slave_domain >= 0 and slave_domain != self.master_domain:
             self.slave_context = rclpy.Context()
             rclpy.init(context=self.slave_context, domain_id=slave_domain)
+            # Without rosout: the log goes through this node, and rcl keeps one rosout
+            # publisher per node name in a process (a second one is refused with a warning).
             slave_node = rclpy.create_node(self.get_name(), namespace=self.get_namespace(),
-                                           context=self.slave_context)
+                                           context=self.slave_context, enable_rosout=False)
             self.slave_executor = SingleThreadedExecutor(context=self.slave_context)
             self.slave_executor.add_node(slave_node)
         else:
@@ -298,10 +300,9 @@ class LinkEmulatorNode(Node):
                 f'{k} {v}' for k, v in stats.items()))
 
     def destroy_node(self):
-        """Stop both threads that publish, log what was done, leave the slave's domain."""
+        """Stop both threads that publish, leave the slave's domain, log what was done."""
         # Both threads must have ended before any publisher they use is destroyed.
         self.releaser.stop()
-        self._log_summary()
         if self.slave_executor is not None:
             self.slave_executor.shutdown()
             self.slave_thread.join()
@@ -309,6 +310,9 @@ class LinkEmulatorNode(Node):
             self.slave_node.destroy_node()
             rclpy.try_shutdown(context=self.slave_context)
         super().destroy_node()
+        # Logged once the node, and its rosout publisher, are gone: a Ctrl-C has shut the
+        # context down already, and rosout would refuse the lines with an error each.
+        self._log_summary()
 
 
 def main(args=None):
