@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 
+import dds_shm
 from driver_harness import PACKAGE, REPO
 import pytest
 
@@ -30,3 +31,20 @@ def install_prefix(tmp_path_factory):
     assert (prefix / 'share' / PACKAGE / 'hook' / 'ament_prefix_path.dsv').exists(), (
         'colcon built a plain Python package, not an ament package: check package.xml')
     return prefix
+
+
+@pytest.fixture(scope='session', autouse=True)
+def no_orphaned_dds_shared_memory():
+    """
+    Fail the run if it leaves Fast DDS shared memory in /dev/shm whose process has gone.
+
+    Counted: the segments and ports that appeared during the run and that no process holds at
+    its end (a participant killed before its teardown). They are removed, then reported. A
+    test run beside this one on the same machine that leaves some meanwhile is counted too.
+    """
+    before = dds_shm.groups()
+    yield
+    left = dds_shm.orphaned(dds_shm.groups() - before)
+    dds_shm.remove(left)
+    assert not left, (f'{len(left)} Fast DDS shared-memory segments or ports were left by '
+                      f'processes that did not tear down (removed now): {sorted(left)}')
