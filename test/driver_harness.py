@@ -10,6 +10,7 @@ import signal
 import subprocess
 import time
 
+import dds_shm
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -177,7 +178,11 @@ class DriverProcess:
         return self.process.returncode, output
 
     def kill(self):
-        """Make sure the process is gone."""
+        """Make sure the process is gone: SIGTERM (DDS tears down), SIGKILL if that fails."""
         if self.process.poll() is None:
-            self.process.kill()
-            self.process.communicate(timeout=10)
+            self.process.terminate()
+            try:
+                self.process.communicate(timeout=WAIT_S)
+            except subprocess.TimeoutExpired:
+                dds_shm.kill_and_clean(self.process)
+                self.process.communicate(timeout=10)

@@ -8,6 +8,7 @@ import shlex
 import subprocess
 import sys
 
+import dds_shm
 from driver_harness import DriverProcess, next_domain_id, REPO, RosClient
 from geometry_msgs.msg import TwistStamped
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
@@ -58,8 +59,8 @@ def test_the_readme_venv_commands_work_as_typed():
                 assert result.returncode == 0, f'{command}\n{result.stdout}{result.stderr}'
         assert driver is not None and driver.returncode == 0
     finally:
-        if driver is not None and driver.poll() is None:
-            driver.kill()
+        if driver is not None:
+            dds_shm.end(driver)
             driver.communicate()
 
 

@@ -9,6 +9,7 @@ import subprocess
 import threading
 import time
 
+import dds_shm
 from driver_harness import DriverProcess, executable as executable_path, installed_env
 from driver_harness import next_domain_id, REPO, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -361,6 +362,5 @@ def test_the_readme_example_relays_pose_to_the_slave_and_its_wrench_back(install
         for side in sides.values():
             side.close()
         for process in processes:
-            if process.poll() is None:
-                process.kill()
+            dds_shm.end(process)
             process.communicate(timeout=10)

@@ -10,6 +10,7 @@ import subprocess
 import threading
 import time
 
+import dds_shm
 from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -260,10 +261,8 @@ class RecordCommand:
         return self.process.returncode
 
     def kill(self):
-        """Make sure the process is gone."""
-        if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait(timeout=10)
+        """Make sure the process is gone (SIGTERM first: its DDS participant tears down)."""
+        dds_shm.end(self.process)
 
 
 @pytest.fixture(scope='module')
