@@ -37,16 +37,16 @@ PR_SET_CHILD_SUBREAPER = 36  # linux/prctl.h
 
 # A parent that starts the command it is given, says its process id, and waits: as a launch or
 # `ros2 run` does. Its output goes to the file named first.
-PARENT = '''
+PARENT = """
 import subprocess, sys, time
 with open(sys.argv[1], 'w') as output:
     child = subprocess.Popen(sys.argv[2:], stdout=output, stderr=subprocess.STDOUT)
 print(child.pid, flush=True)
 time.sleep(3600)
-'''
+"""
 # The grandparent: a subreaper, so that the orphaned child becomes its child and its exit code
 # can be told. It prints the parent's and the child's ids, then each exit as "pid code".
-REAPER = f'''
+REAPER = f"""
 import ctypes, os, subprocess, sys
 ctypes.CDLL(None).prctl({PR_SET_CHILD_SUBREAPER}, 1, 0, 0, 0)
 parent = subprocess.Popen([sys.executable, '-c', {PARENT!r}, *sys.argv[1:]],
@@ -58,7 +58,7 @@ while True:
     except ChildProcessError:
         break
     print(pid, os.waitstatus_to_exitcode(status), flush=True)
-'''
+"""
 
 
 def send(process, signals):
