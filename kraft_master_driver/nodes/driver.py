@@ -26,7 +26,7 @@ from kraft_master_driver.nodes.driver_parameters import PARAMETERS, SIM_PORT
 from kraft_master_driver.nodes.driver_topics import InputTopics, StateTopics
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import check_value, declare_parameters, ParameterError
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
@@ -68,7 +68,7 @@ class KraftMasterNode(Node):
         self.create_service(SetBool, 'enable_force', self._on_enable_force)
         self.create_service(Trigger, 'set_center', self._on_set_center)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(1.0, self._publish_diagnostics)
+        steady_timer(self, 1.0, self._publish_diagnostics)
         self._errors_reported = {}
 
         self.simulator = self.device = self.loop = self._thread = None

@@ -29,7 +29,7 @@ from kraft_master_driver.core.delay_line import DelayLine, LinkModel
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -241,9 +241,9 @@ class LinkEmulatorNode(Node):
         self.diag_pub = self.create_publisher(
             DiagnosticArray, 'diagnostics',
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        self.create_timer(0.5, self._discover)
-        self.create_timer(1.0, self._publish_diagnostics)
-        self.create_timer(LOG_PERIOD_S, self._log_summary)
+        steady_timer(self, 0.5, self._discover)
+        steady_timer(self, 1.0, self._publish_diagnostics)
+        steady_timer(self, LOG_PERIOD_S, self._log_summary)
         self.get_logger().info(
             f'relaying domain {self.master_domain} (master) <-> {slave_domain} (slave); '
             + '; '.join(f'{d}: {", ".join(config[f"{d}.topics"])} with {models[d]}'

@@ -1,0 +1,27 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""use_sim_time:=true without a /clock: the diagnostics go on, on the steady clock (issue 20)."""
+from diagnostic_msgs.msg import DiagnosticArray
+from driver_harness import DriverProcess, next_domain_id, RosClient
+import pytest
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.mark.parametrize('name', ['kraft_master_node', 'kraft_master_slave_sim'])
+def test_diagnostics_go_on_under_sim_time_without_a_clock(install_prefix, name):
+    domain_id = next_domain_id()
+    parameters = [('use_sim_time', 'true')]
+    if name == 'kraft_master_node':
+        parameters.append(('port', 'sim'))
+    node = DriverProcess(install_prefix, domain_id, parameters, name=name)
+    client = RosClient(domain_id)
+    try:
+        arrays = []
+        client.node.create_subscription(DiagnosticArray, '/diagnostics', arrays.append, 10)
+        client.wait(lambda: len(arrays) >= 3)
+        # Stamped with the node's clock: ROS time, 0 until a /clock comes.
+        assert arrays[-1].header.stamp.sec == 0
+    finally:
+        client.close()
+        node.kill()
