@@ -36,15 +36,18 @@ def install_prefix(tmp_path_factory):
 @pytest.fixture(scope='session', autouse=True)
 def no_orphaned_dds_shared_memory():
     """
-    Fail the run if it leaves Fast DDS shared memory in /dev/shm whose process has gone.
+    Fail the run if its processes leave Fast DDS shared memory in /dev/shm behind.
 
-    Counted: the segments and ports that appeared during the run and that no process holds at
-    its end (a participant killed before its teardown). They are removed, then reported. A
-    test run beside this one on the same machine that leaves some meanwhile is counted too.
+    Counted: the segments and ports that appeared during the run, that a process of this run
+    (this one or a descendant) was seen holding, and that no process holds at the end (a
+    participant killed before its teardown). They are removed, then named. Seen: the holders
+    are looked at every 0.2 s, so a process killed sooner after it started goes uncounted;
+    another test run on the same machine is never counted.
     """
-    before = dds_shm.groups()
+    watcher = dds_shm.Watcher()
+    watcher.start()
     yield
-    left = dds_shm.orphaned(dds_shm.groups() - before)
+    left = dds_shm.orphaned(watcher.stop())
     dds_shm.remove(left)
     assert not left, (f'{len(left)} Fast DDS shared-memory segments or ports were left by '
                       f'processes that did not tear down (removed now): {sorted(left)}')

@@ -14,6 +14,7 @@ import pathlib
 import re
 import signal
 import subprocess
+import threading
 
 SHM_DIR = pathlib.Path('/dev/shm')
 LOCK_SUFFIXES = ('_el', '_sl')
@@ -109,3 +110,46 @@ def end(process, timeout=30.0):
         process.wait(timeout)
     except subprocess.TimeoutExpired:
         kill_and_clean(process)
+
+
+def _descends_from(pid, ancestor):
+    while pid > 1:
+        if pid == ancestor:
+            return True
+        try:
+            with open(f'/proc/{pid}/stat') as stat:
+                pid = int(stat.read().rpartition(')')[2].split()[1])
+        except (FileNotFoundError, ProcessLookupError, ValueError):
+            return False
+    return pid == ancestor
+
+
+class Watcher(threading.Thread):
+    """Notes, every `period` s, the new groups held by this process or one of its descendants."""
+
+    def __init__(self, period=0.2):
+        """Take the groups there now as not ours; call start()."""
+        super().__init__(name='dds_shm_watcher', daemon=True)
+        self.before = groups()
+        self.ours = set()
+        self._period = period
+        self._stopping = threading.Event()
+
+    def run(self):
+        """Look until stop()."""
+        while not self._stopping.wait(self._period):
+            self.look()
+
+    def look(self):
+        """Note the new groups whose lock one of our processes holds now."""
+        owners = _lock_owners()
+        for group in groups() - self.before - self.ours:
+            if any(_descends_from(pid, os.getpid()) for pid in _holders(group, owners)):
+                self.ours.add(group)
+
+    def stop(self):
+        """Stop looking (after a last look); return the groups noted."""
+        self._stopping.set()
+        self.join()
+        self.look()
+        return self.ours
