@@ -1,9 +1,10 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""use_sim_time:=true without a /clock: the diagnostics go on, on the steady clock (issue 20)."""
+"""What ROS users see of the nodes: /diagnostics under use_sim_time, the slave's wrench QoS."""
 from diagnostic_msgs.msg import DiagnosticArray
 from driver_harness import DriverProcess, next_domain_id, RosClient
 import pytest
+from rclpy.qos import ReliabilityPolicy
 
 pytestmark = pytest.mark.integration
 
@@ -25,3 +26,15 @@ def test_diagnostics_go_on_under_sim_time_without_a_clock(install_prefix, name):
     finally:
         client.close()
         node.kill()
+
+
+def test_the_slave_sim_publishes_wrench_reliable(install_prefix):
+    domain_id = next_domain_id()
+    slave = DriverProcess(install_prefix, domain_id, name='kraft_master_slave_sim')
+    client = RosClient(domain_id)
+    try:
+        (info,) = client.wait(lambda: client.node.get_publishers_info_by_topic('/wrench'))
+        assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    finally:
+        client.close()
+        slave.kill()
