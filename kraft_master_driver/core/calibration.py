@@ -201,6 +201,15 @@ class ArmCalibration:
         return f'ArmCalibration(arm={self.arm!r}, source={self.source!r})'
 
 
+def yaml_fault(path, error):
+    """Return one line naming the file, the line and the fault of a YAML error (PyYAML: four)."""
+    mark = getattr(error, 'problem_mark', None)
+    where = f'{path} line {mark.line + 1}' if mark else path
+    problem = getattr(error, 'problem', None) or str(error)
+    context = getattr(error, 'context', None)
+    return f'{where}: not valid YAML: {problem}' + (f' ({context})' if context else '')
+
+
 def read_parameter_file(path):
     """Return the ros__parameters mapping of a one-node ROS 2 parameter file."""
     try:
@@ -211,7 +220,7 @@ def read_parameter_file(path):
     except UnicodeDecodeError as error:
         raise CalibrationError(f'{path}: not UTF-8 text: {error}') from error
     except yaml.YAMLError as error:
-        raise CalibrationError(f'{path}: not valid YAML: {error}') from error
+        raise CalibrationError(yaml_fault(path, error)) from None
     if not isinstance(document, dict) or len(document) != 1:
         raise CalibrationError(
             f'{path}: expected one node section such as "/**:" holding "ros__parameters:"')

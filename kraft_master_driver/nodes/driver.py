@@ -26,7 +26,7 @@ from kraft_master_driver.nodes.driver_parameters import PARAMETERS, SIM_PORT
 from kraft_master_driver.nodes.driver_topics import InputTopics, StateTopics
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import check_value, declare_parameters, ParameterError
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
@@ -69,10 +69,30 @@ class KraftMasterNode(Node):
         self.create_service(SetBool, 'enable_force', self._on_enable_force)
         self.create_service(Trigger, 'set_center', self._on_set_center)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_timer(1.0, self._publish_diagnostics)
+        steady_timer(self, 1.0, self._publish_diagnostics)
         self._errors_reported = {}
 
-        self.simulator = None
+        self.simulator = self.device = self.loop = self._thread = None
+        try:
+            self._start_device()
+        except BaseException:
+            # A stop signal during start-up: what was started is stopped as on any stop.
+            self.stop()
+            raise
+        force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
+        if self.device.link_up:
+            self.get_logger().info(
+                f'{self.arm} Kraft Master on {self.config["port"]} at '
+                f'{self.config["loop_rate_hz"]:g} Hz; force output {force}')
+        else:
+            self.get_logger().warning(
+                f'{self.arm} Kraft Master on {self.config["port"]}: {self.loop.link_state()}; '
+                'retrying')
+
+    # -- set-up --------------------------------------------------------------------------
+
+    def _start_device(self):
+        """Start the simulator if asked, open the device and start the loop thread."""
         port = self.config['port']
         if port == SIM_PORT:
             port = self._start_simulator()
@@ -94,21 +114,9 @@ class KraftMasterNode(Node):
             rate_hz=self.config['loop_rate_hz'], take_inputs=self.inputs.take,
             publish_decimation=self.config['publish_decimation'],
             priority=self.config['loop_priority'], keep_running=self.context.ok)
-        # Not a daemon: the interpreter waits for the loop to zero the torques on its way out,
-        # even when a signal ends the process before this constructor returns.
+        # Not a daemon: the interpreter waits for the loop to zero the torques on its way out.
         self._thread = threading.Thread(target=self.loop.run, name='kraft_master_loop')
         self._thread.start()
-        force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
-        if self.device.link_up:
-            self.get_logger().info(
-                f'{self.arm} Kraft Master on {self.config["port"]} at '
-                f'{self.config["loop_rate_hz"]:g} Hz; force output {force}')
-        else:
-            self.get_logger().warning(
-                f'{self.arm} Kraft Master on {self.config["port"]}: {self.loop.link_state()}; '
-                'retrying')
-
-    # -- set-up --------------------------------------------------------------------------
 
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
@@ -245,10 +253,12 @@ class KraftMasterNode(Node):
 
     def stop(self):
         """Stop the loop thread, write zero torques, close the port and the simulator."""
-        self.loop.stop()
-        if self._thread.is_alive():
+        if self.loop is not None:
+            self.loop.stop()
+        if self._thread is not None and self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        self.device.close()
+        if self.device is not None:
+            self.device.close()
         if self.simulator is not None:
             self.simulator.stop()
 

@@ -6,14 +6,22 @@ The life of a node's process: command line, start-up, spin, shutdown, exit code.
 run_node() answers --help, checks the params files before rcl reads them (one line naming the
 file, the line and the fault), turns every refusal into one line on stderr and exit code 1, and
 ends the process if its shutdown hangs.
+
+However a node is asked to stop, it stops the same way and exits 0: SIGINT (Ctrl-C), SIGTERM
+(systemd, docker stop, a launch), SIGHUP (its terminal closed), and the SIGTERM the kernel sends
+when its parent dies (core.process.stop_with_parent). The first of these ends the spin; those
+that follow are ignored, so that a second Ctrl-C cannot cut short the node's own stop (the
+driver's zero-torque command, the closing of its port and of its simulator).
 """
 import faulthandler
 import gc
 import os
 import re
+import signal
 import sys
 import threading
 
+from kraft_master_driver.core.process import stop_with_parent
 from kraft_master_driver.nodes.parameters import ParameterError, read_params_file, usage
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -50,32 +58,31 @@ def _rcl_reason(error):
 
 def run_node(make_node, program, summary, table, args=None):
     """
-    Spin the node make_node(params_files) returns until Ctrl-C or SIGTERM; return the exit code.
+    Spin the node make_node(params_files) returns until asked to stop; return the exit code.
 
     --help prints the usage and returns 0 without starting anything; a bad params file, an
-    argument that is not a ROS argument, or a bad parameter prints one line and returns 1.
+    argument that is not a ROS argument, or a bad parameter prints one line and returns 1. A
+    stop signal (see the module's docstring) returns 0, during start-up too.
     """
     argv = sys.argv if args is None else args
     own = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
     if '-h' in own or '--help' in own:
         print(usage(program, summary, table))
         return 0
+    stop_request = StopRequest()
+    stop_with_parent()
+    node = None
+    exit_code = 0
     try:
         params_files = [read_params_file(path) for path in ros_argument_files(argv)]
         extra = _program_arguments(argv)
         if extra:
             raise ParameterError(f'unexpected argument {extra[0]!r}: ROS arguments go after '
                                  f'--ros-args (see {program} --help)')
-        rclpy.init(args=argv)
-    except ParameterError as error:
-        print(f'{program}: {error}', file=sys.stderr)
-        return 1
-    except _rclpy.RCLError as error:
-        print(f'{program}: cannot start: {_rcl_reason(error)}', file=sys.stderr)
-        return 1
-    node = None
-    exit_code = 0
-    try:
+        try:
+            rclpy.init(args=argv)
+        except _rclpy.RCLError as error:
+            raise ParameterError(f'cannot start: {_rcl_reason(error)}') from None
         node = make_node(params_files)
         # The set-up's objects live as long as the process: leave them out of garbage
         # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
@@ -91,12 +98,55 @@ def run_node(make_node, program, summary, table, args=None):
         print(f'{program}: {error}', file=sys.stderr)
         exit_code = 1
     finally:
+        stop_request.received = True  # from here on, a signal changes nothing
         watchdog = _exit_if_stuck(program, exit_code)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
         watchdog.cancel()
+        stop_request.ignore_from_now_on()
     return exit_code
+
+
+class StopRequest:
+    """
+    The signals that ask a node to stop: the first raises KeyboardInterrupt, later ones do not.
+
+    SIGINT and SIGTERM are also caught by rclpy.init's handlers, which wake the executor and
+    then call these. rclpy leaves SIGHUP alone, and Python runs a handler only once the main
+    thread wakes: a thread of its own waits for SIGHUP (Python writes each signal's number to
+    a wake-up pipe) and sends it on as SIGTERM.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+    def __init__(self):
+        """Install the handlers (before rclpy.init, which calls them from its own)."""
+        self.received = False
+        for signum in self.SIGNALS:
+            signal.signal(signum, self._on_signal)
+        read_end, write_end = os.pipe()
+        os.set_blocking(write_end, False)
+        signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
+        threading.Thread(target=self._hangup_as_sigterm, args=(read_end,), name='sighup',
+                         daemon=True).start()
+
+    def ignore_from_now_on(self):
+        """Ignore the signals: the interpreter's exit would restore their default, fatal one."""
+        self.received = True
+        for signum in self.SIGNALS:
+            signal.signal(signum, signal.SIG_IGN)
+
+    def _on_signal(self, _signum, _frame):
+        if not self.received:
+            self.received = True
+            raise KeyboardInterrupt
+
+    @staticmethod
+    def _hangup_as_sigterm(read_end):
+        while int(signal.SIGHUP) not in os.read(read_end, 64):
+            pass
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def _exit_if_stuck(program, exit_code):

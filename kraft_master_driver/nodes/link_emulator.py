@@ -29,7 +29,7 @@ from kraft_master_driver.core.delay_line import DelayLine, LinkModel
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S
+from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -208,8 +208,10 @@ class LinkEmulatorNode(Node):
         if slave_domain >= 0 and slave_domain != self.master_domain:
             self.slave_context = rclpy.Context()
             rclpy.init(context=self.slave_context, domain_id=slave_domain)
+            # Without rosout: the log goes through this node, and rcl keeps one rosout
+            # publisher per node name in a process (a second one is refused with a warning).
             slave_node = rclpy.create_node(self.get_name(), namespace=self.get_namespace(),
-                                           context=self.slave_context)
+                                           context=self.slave_context, enable_rosout=False)
             self.slave_executor = SingleThreadedExecutor(context=self.slave_context)
             self.slave_executor.add_node(slave_node)
         else:
@@ -239,9 +241,9 @@ class LinkEmulatorNode(Node):
         self.diag_pub = self.create_publisher(
             DiagnosticArray, 'diagnostics',
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        self.create_timer(0.5, self._discover)
-        self.create_timer(1.0, self._publish_diagnostics)
-        self.create_timer(LOG_PERIOD_S, self._log_summary)
+        steady_timer(self, 0.5, self._discover)
+        steady_timer(self, 1.0, self._publish_diagnostics)
+        steady_timer(self, LOG_PERIOD_S, self._log_summary)
         self.get_logger().info(
             f'relaying domain {self.master_domain} (master) <-> {slave_domain} (slave); '
             + '; '.join(f'{d}: {", ".join(config[f"{d}.topics"])} with {models[d]}'
@@ -298,10 +300,9 @@ class LinkEmulatorNode(Node):
                 f'{k} {v}' for k, v in stats.items()))
 
     def destroy_node(self):
-        """Stop both threads that publish, log what was done, leave the slave's domain."""
+        """Stop both threads that publish, leave the slave's domain, log what was done."""
         # Both threads must have ended before any publisher they use is destroyed.
         self.releaser.stop()
-        self._log_summary()
         if self.slave_executor is not None:
             self.slave_executor.shutdown()
             self.slave_thread.join()
@@ -309,6 +310,9 @@ class LinkEmulatorNode(Node):
             self.slave_node.destroy_node()
             rclpy.try_shutdown(context=self.slave_context)
         super().destroy_node()
+        # Logged once the node, and its rosout publisher, are gone: a Ctrl-C has shut the
+        # context down already, and rosout would refuse the lines with an error each.
+        self._log_summary()
 
 
 def main(args=None):

@@ -16,6 +16,7 @@ import re
 import textwrap
 from typing import NamedTuple
 
+from kraft_master_driver.core.calibration import yaml_fault
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy.exceptions
 from rclpy.parameter import Parameter
@@ -272,12 +273,7 @@ def read_params_file(path):
         raise ParameterError(f'{path}: cannot read the params file: '
                              f'{error.strerror or error}') from None
     except yaml.YAMLError as error:
-        mark = getattr(error, 'problem_mark', None)
-        where = f'{path} line {mark.line + 1}' if mark else path
-        problem = getattr(error, 'problem', None) or str(error)
-        context = getattr(error, 'context', None)
-        raise ParameterError(f'{where}: not valid YAML: {problem}'
-                             + (f' ({context})' if context else '')) from None
+        raise ParameterError(yaml_fault(path, error)) from None
     if root is None:
         raise ParameterError(f'{path}: the params file is empty')
     return ParamsFile(str(path), tuple(_node_entries(path, root)))

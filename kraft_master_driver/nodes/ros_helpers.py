@@ -1,11 +1,22 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""ROS helpers the package's nodes share: a callback group for loop threads, GIL timing."""
+"""ROS helpers the package's nodes share: loop threads' callback group, steady timers, GIL."""
 from rclpy.callback_groups import CallbackGroup
+from rclpy.clock import Clock, ClockType
 
 # The interpreter's switch interval (s) for processes with a paced thread: that thread must
 # get the GIL soon after it wakes, not up to 5 ms (the default) later.
 GIL_SWITCH_INTERVAL_S = 0.0002
+
+
+def steady_timer(node, period_s, callback):
+    """
+    Return a timer of `node` on the steady clock.
+
+    A timer on the node's clock stops under use_sim_time while no /clock is published; the
+    diagnostics and the periodic log must not.
+    """
+    return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
 class TakenByLoopThread(CallbackGroup):

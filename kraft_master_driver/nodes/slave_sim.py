@@ -29,7 +29,7 @@ from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
-from kraft_master_driver.nodes.ros_helpers import TakenByLoopThread
+from kraft_master_driver.nodes.ros_helpers import steady_timer, TakenByLoopThread
 from kraft_master_driver.simulation.model import Workspace
 import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -360,7 +360,7 @@ class SlaveSimNode(Node):
         self._master_energy_sub = self._taken_by_ticks(
             Vector3Stamped, 'master_energy', self._on_master_energy)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', state_qos)
-        self.create_timer(1.0, self._publish_diagnostics)
+        steady_timer(self, 1.0, self._publish_diagnostics)
         if self.mode == 'rate':
             self.arm.reset(self.map.offset)
         self.last_tick = time.monotonic()

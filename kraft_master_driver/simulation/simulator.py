@@ -30,6 +30,7 @@ import time
 
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.core.process import stop_with_parent
 from kraft_master_driver.link.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec)
 from kraft_master_driver.simulation.electronics import COUPLINGS, Electronics
@@ -276,7 +277,7 @@ RECORD_ALL = None  # an unbounded deque
 
 
 def main(argv=None):
-    """Run the simulator from the command line until Ctrl-C or SIGTERM; return 0."""
+    """Run the simulator from the command line until Ctrl-C, SIGTERM or SIGHUP; return 0."""
     parser = argparse.ArgumentParser(
         prog='kraft_master_sim',
         description='Simulated Kraft Master hand controller on a pseudo-terminal (or TCP). '
@@ -331,7 +332,8 @@ def main(argv=None):
     # this thread holds the Event's lock inside wait() (a full test run once hung so).
     stop = []
     handlers = {signum: signal.signal(signum, lambda signum, _frame: stop.append(signum))
-                for signum in (signal.SIGINT, signal.SIGTERM)}
+                for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    stop_with_parent()
     try:
         with simulator:
             print(f'port: {simulator.port}', flush=True)

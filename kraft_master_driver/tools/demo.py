@@ -43,6 +43,7 @@ MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
 START_TIMEOUT = 60.0  # s for the driver and the slave to come up
 REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 EMULATOR = [sys.executable, '-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
             '-p', 'to_slave.topics:=[pose, master_energy]',
             '-p', 'to_master.topics:=[wrench, slave_energy, slave_pose]']
@@ -216,7 +217,7 @@ def stop(processes):
             process.wait()
 
 
-def _stop_on_sigterm(*_):
+def _stop_on_signal(*_):
     raise KeyboardInterrupt
 
 
@@ -235,9 +236,9 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
     simulator = subprocess.Popen(SIMULATOR, stdout=subprocess.PIPE, text=True, **child)
     processes = [simulator]
     screen = Screen(out)
-    previous_sigterm = signal.signal(signal.SIGTERM, _stop_on_sigterm)
-    # Ctrl-C stops the demo even where it came ignored (a shell's background job ignores it).
-    previous_sigint = signal.signal(signal.SIGINT, signal.default_int_handler)
+    # SIGTERM and SIGHUP (a closed terminal) stop the demo as Ctrl-C does, and Ctrl-C stops it
+    # even where it came ignored (a shell's background job ignores it).
+    previous = {signum: signal.signal(signum, _stop_on_signal) for signum in STOP_SIGNALS}
     readout = None
     try:
         port = simulator.stdout.readline().partition('port: ')[2].strip()
@@ -265,14 +266,14 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
     except KeyboardInterrupt:
         return 0
     finally:
-        # Another Ctrl-C or SIGTERM must not cut the stopping short.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        # Another stop signal must not cut the stopping short.
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, signal.SIG_IGN)
         if readout is not None:
             readout.close()
         stop(processes)
-        signal.signal(signal.SIGINT, previous_sigint)
-        signal.signal(signal.SIGTERM, previous_sigterm)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
         screen.keep()
         screen.show(log.new_lines(), [])
         log.close()

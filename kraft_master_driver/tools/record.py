@@ -23,6 +23,7 @@ import time
 
 from kraft_master_driver.bag.common import DRIVER_TOPICS, SessionError, typestore
 from kraft_master_driver.bag.recorder import BagRecorder, qos_profile, STORAGES
+from kraft_master_driver.core.process import stop_with_parent
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -158,7 +159,7 @@ def _parser():
 
 
 def main(argv=None):
-    """Record until Ctrl-C or SIGTERM; return 0, or 1 when the bag cannot be made or written."""
+    """Record until Ctrl-C, SIGTERM or SIGHUP; return 0, or 1 if the bag cannot be written."""
     parser = _parser()
     args = parser.parse_args(rclpy.utilities.remove_ros_args(
         sys.argv[1:] if argv is None else argv))
@@ -170,8 +171,9 @@ def main(argv=None):
     topics = (None if args.all else
               sorted({'/' + t.lstrip('/') for t in args.topics}) or driver_topics(args.namespace))
     stop = []
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(signum, lambda signum, _frame: stop.append(signum))
+    stop_with_parent()
     try:
         bag = BagRecorder(output, args.storage)
     except SessionError as error:

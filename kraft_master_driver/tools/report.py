@@ -35,6 +35,7 @@ ARM_TOPICS = ('joint_states', 'pose', 'pots', 'wrench', 'diagnostics')
 STATE_TOPICS = ('joint_states', 'pots', 'pose')  # one of them makes a namespace an arm
 PLOT_BUCKETS = 1500  # time series are drawn as min/max envelopes of this many buckets
 PATH_POINTS = 5000  # wrist paths are drawn with at most this many points
+STILL_MM = 0.1  # a wrist path that spans less (every axis) is drawn as a point: "no motion"
 CSV_CHUNK = 65536  # rows formatted at once
 # Link counters that are not errors: progress, and what the driver did to commands.
 LINK_NOT_ERRORS = ('cycles', 'replies', 'clamped_commands', 'nonfinite_commands',
@@ -494,10 +495,13 @@ def _draw_paths(ax3d, planes, arm_data, recalibration):
         paths.append(('recalibrated', recalibration.wrist))
     paths = [(label, _thin(wrist[np.all(np.isfinite(wrist), axis=1)]) * 1e3)
              for label, wrist in paths]
+    # A path of one point (the wrist did not move) is no line: it is marked, and said.
+    still = all(np.ptp(wrist, axis=0).max() < STILL_MM for _, wrist in paths if len(wrist))
     ax3d.set_title('wrist path (mm)')
     for label, wrist in paths:
         if len(wrist):
-            ax3d.plot(wrist[:, 0], wrist[:, 1], wrist[:, 2], lw=0.6, label=label)
+            ax3d.plot(wrist[:, 0], wrist[:, 1], wrist[:, 2], lw=0.6, label=label,
+                      marker='o' if still else None)
     ax3d.set_xlabel('x')
     ax3d.set_ylabel('y')
     ax3d.set_zlabel('z')
@@ -508,9 +512,13 @@ def _draw_paths(ax3d, planes, arm_data, recalibration):
         ax.set_aspect('equal', adjustable='datalim')
         for label, wrist in paths:
             if len(wrist):
-                ax.plot(wrist[:, AXES[a]], wrist[:, AXES[b]], lw=0.6, label=label)
+                ax.plot(wrist[:, AXES[a]], wrist[:, AXES[b]], lw=0.6, label=label,
+                        marker='o' if still else None)
         if not any(len(wrist) for _, wrist in paths):
             _no_data(ax, 'no pose')
+        elif still:
+            ax.text(0.5, 0.9, f'no motion (within {STILL_MM:g} mm)', ha='center',
+                    transform=ax.transAxes, color='0.4')
     if recalibration is not None and any(len(wrist) for _, wrist in paths):
         planes[0].legend(fontsize='small')
 

@@ -8,6 +8,7 @@ hosts as network namespaces. remote_session: one teleoperation session across th
 remote_probe.py and remote_recorder.py the scripts run inside a host. faults: the fault
 suite's session and injections (benchmarks/soak.py uses them too), with wrench_source.py the
 wrench publisher it runs as a process. type_hashes: the message type hashes rosidl generated.
+dds_shm: Fast DDS's shared-memory files, and ending DDS processes so that they remove theirs.
 This module: where the repository is.
 """
 import pathlib

@@ -10,7 +10,7 @@ import subprocess
 import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from harness import PACKAGE
+from harness import dds_shm, PACKAGE
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -175,10 +175,14 @@ class DriverProcess:
         return self.process.returncode, output
 
     def kill(self):
-        """Make sure the process is gone."""
+        """Make sure the process is gone: SIGTERM (DDS tears down), SIGKILL if that fails."""
         if self.process.poll() is None:
-            self.process.kill()
-            self.process.communicate(timeout=10)
+            self.process.terminate()
+            try:
+                self.process.communicate(timeout=WAIT_S)
+            except subprocess.TimeoutExpired:
+                dds_shm.kill_and_clean(self.process)
+                self.process.communicate(timeout=10)
 
 
 def slave_process(prefix, domain_id, parameters=()):

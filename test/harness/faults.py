@@ -27,6 +27,7 @@ import time
 from typing import Callable, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
+from harness import dds_shm
 from harness.driver import DriverProcess, installed_env, next_domain_id, wait_for, WAIT_S
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
@@ -149,10 +150,8 @@ class Driver:
         return code
 
     def kill(self):
-        """Make sure the process is gone."""
-        if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait(timeout=10.0)
+        """Make sure the process is gone (SIGTERM first: its DDS participant tears down)."""
+        dds_shm.end(self.process, timeout=WAIT_S)
         self._reader.join(timeout=10.0)
 
 
@@ -194,10 +193,12 @@ class WrenchSource:
         return int(time_ns), int(published)
 
     def kill(self):
-        """SIGKILL the process; return time.time_ns() just before."""
+        """SIGKILL the process; return time.time_ns() just before. Its shared memory is removed."""
+        held = dds_shm.held_by(self.process.pid)
         killed_ns = time.time_ns()
         self.process.kill()
         self.process.wait(timeout=10.0)
+        dds_shm.remove(dds_shm.orphaned(held))
         return killed_ns
 
     def close(self):
@@ -207,8 +208,7 @@ class WrenchSource:
                 self.process.stdin.close()
                 self.process.wait(timeout=10.0)
             except (OSError, subprocess.TimeoutExpired):
-                self.process.kill()
-                self.process.wait(timeout=10.0)
+                dds_shm.end(self.process)
 
 
 class Observer:

@@ -230,11 +230,11 @@ class TwoHosts:
             _ip('-n', host.name, 'route', 'add', '224.0.0.0/4', 'dev', 'veth0')
 
     def __exit__(self, *exc):
-        """Kill the processes of both hosts and delete the namespaces (and so the veth)."""
+        """End the processes of both hosts and delete the namespaces (and so the veth)."""
         for host in self.hosts:
             for process in host.processes:
                 if process.poll() is None:
-                    process.kill()
+                    process.terminate()  # not SIGKILL: DDS removes its shared memory
         for host in self.hosts:
             for process in host.processes:
                 try:

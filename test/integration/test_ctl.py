@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 from geometry_msgs.msg import TwistStamped
-from harness import REPO
+from harness import dds_shm, REPO
 from harness.driver import DriverProcess, next_domain_id, RosClient
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import pytest
@@ -59,8 +59,8 @@ def test_the_readme_venv_commands_work_as_typed():
                 assert result.returncode == 0, f'{command}\n{result.stdout}{result.stderr}'
         assert driver is not None and driver.returncode == 0
     finally:
-        if driver is not None and driver.poll() is None:
-            driver.kill()
+        if driver is not None:
+            dds_shm.end(driver)
             driver.communicate()
 
 

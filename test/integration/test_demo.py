@@ -16,7 +16,7 @@ import sys
 import threading
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from harness import REPO
+from harness import dds_shm, REPO
 from harness.driver import next_domain_id, wait_for
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
@@ -131,12 +131,23 @@ class Demo:
         return code, output
 
     def kill(self):
-        """Make sure the demo and everything in its session are gone."""
+        """Make sure the demo and everything in its session are gone: SIGTERM, then SIGKILL."""
         for pid in session_processes(self.process.pid):
             try:
-                os.kill(pid, signal.SIGKILL)
+                os.kill(pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
+        try:
+            wait_for(lambda: self.process.poll() is not None and not session_processes(
+                self.process.pid), timeout=60.0)
+        except AssertionError:
+            for pid in session_processes(self.process.pid):
+                held = dds_shm.held_by(pid)
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                dds_shm.remove(dds_shm.orphaned(held))
         if self.process.poll() is None:
             self.process.wait()
 
@@ -238,7 +249,7 @@ def test_the_demo_shows_contact_and_reflected_force_and_leaves_nothing(start_dem
 # The demo started from a shell's background job comes with SIGINT ignored; Ctrl-C or a kill -INT
 # must stop it all the same.
 @pytest.mark.parametrize('sig, sigint_ignored', [(signal.SIGINT, False), (signal.SIGINT, True),
-                                                 (signal.SIGTERM, False)])
+                                                 (signal.SIGTERM, False), (signal.SIGHUP, False)])
 def test_a_signal_to_the_demo_stops_every_process(start_demo, sig, sigint_ignored):
     demo = start_demo(600.0, sigint_ignored=sigint_ignored)
     wait_for(lambda: any(' s | loop ' in line for line in demo.lines), timeout=120.0)

@@ -10,7 +10,7 @@ import threading
 import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from harness import REPO
+from harness import dds_shm, REPO
 from harness.driver import (
     DriverProcess, executable as executable_path, installed_env, next_domain_id, wait_for)
 from kraft_master_driver.nodes.link_emulator import PARAMETERS, parse_relay
@@ -272,6 +272,5 @@ def test_the_readme_example_relays_pose_to_the_slave_and_its_wrench_back(install
         for side in sides.values():
             side.close()
         for process in processes:
-            if process.poll() is None:
-                process.kill()
+            dds_shm.end(process)
             process.communicate(timeout=10)

@@ -12,6 +12,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness import dds_shm
 from harness.driver import DriverProcess, executable, installed_env, next_domain_id, wait_for
 from harness.type_hashes import generated_type_hash
 from kraft_master_driver.bag.common import (
@@ -260,10 +261,8 @@ class RecordCommand:
         return self.process.returncode
 
     def kill(self):
-        """Make sure the process is gone."""
-        if self.process.poll() is None:
-            self.process.kill()
-            self.process.wait(timeout=10)
+        """Make sure the process is gone (SIGTERM first: its DDS participant tears down)."""
+        dds_shm.end(self.process)
 
 
 @pytest.fixture(scope='module')

@@ -13,6 +13,7 @@ import math
 import threading
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from harness import dds_shm
 from harness.driver import (
     DriverProcess, next_domain_id, RosClient, slave_process, vector_parameter, WAIT_S)
 from kraft_master_driver.core import kinematics
@@ -94,7 +95,7 @@ class Teleoperation:
         except AssertionError:
             outputs = []
             for started in (self.driver, self.slave):
-                started.process.kill()
+                dds_shm.end(started.process)
                 outputs.append(started.process.communicate(timeout=10)[0])
             self.close()
             raise AssertionError('driver or slave did not start:\n' + '\n'.join(outputs))

@@ -6,7 +6,7 @@ import signal
 import subprocess
 import sys
 
-from harness import REPO
+from harness import dds_shm, REPO
 from harness.driver import executable, installed_env, next_domain_id
 from harness.netns import namespaces_of_this_process, NamespacesRefused, TwoHosts
 import pytest
@@ -59,7 +59,7 @@ def probe(host, prefix, domain_id):
 
 def driver_output(process):
     """Stop a started process and return its output, for a failing assertion's message."""
-    process.kill()
+    dds_shm.end(process)
     return process.communicate(timeout=10)[0]
 
 

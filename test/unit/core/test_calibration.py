@@ -245,11 +245,12 @@ def edited_config(tmp_path, old, new):
 
 
 def assert_rejected(path, *fragments):
-    """Assert from_yaml raises CalibrationError naming the file and every fragment."""
+    """Assert from_yaml raises CalibrationError, one line naming the file and every fragment."""
     with pytest.raises(CalibrationError) as error:
         ArmCalibration.from_yaml(path)
     message = str(error.value)
-    assert message.startswith(f'{path}: '), message
+    assert message.startswith(f'{path}: ') or message.startswith(f'{path} line '), message
+    assert '\n' not in message, message
     for fragment in fragments:
         assert fragment in message, message
     assert isinstance(error.value, ValueError)
@@ -264,8 +265,8 @@ def test_directory_instead_of_file(tmp_path):
 
 
 @pytest.mark.parametrize('text, fault', (
-    ('/**:\n  ros__parameters: [unclosed\n', 'not valid YAML'),
-    ('/**:\n  ros__parameters:\n    arm: right\n   calibration: {}\n', 'not valid YAML'),
+    ('/**:\n  ros__parameters: [unclosed\n', 'line 3: not valid YAML'),
+    ('/**:\n  ros__parameters:\n    arm: right\n   calibration: {}\n', 'line 4: not valid YAML'),
     ('', 'expected one node section'),
     ('- arm\n- right\n', 'expected one node section'),
     ('/a:\n  ros__parameters: {}\n/b:\n  ros__parameters: {}\n', 'expected one node section'),

@@ -484,3 +484,17 @@ def test_period_histogram_keeps_every_outlier_in_a_labelled_last_bin():
                     if ax.get_title().startswith('loop period')]
     assert [t.get_text() for t in histogram.texts] == ['2 over 3.00 ms\nmax 69.9 ms']
     assert 'max 69.900 ms' in histogram.get_title()
+
+
+def test_a_wrist_that_did_not_move_is_drawn_as_a_point_said_no_motion(tmp_path):
+    bag = tmp_path / 'session'
+    write_bag(bag, 'mcap', {'/right': ('right', 4)})
+    (moving,) = report.read_arms(bag)
+    still = moving._replace(wrist=np.repeat(moving.wrist[:1], len(moving.wrist), axis=0))
+    for arm_data, said in ((moving, []), (still, ['no motion (within 0.1 mm)'])):
+        figure = report.draw(arm_data)
+        planes = [ax for ax in figure.axes if ax.get_title().startswith('wrist path, ')]
+        assert len(planes) == 3
+        for ax in planes:
+            assert [t.get_text() for t in ax.texts] == said
+            assert ax.lines and ax.lines[0].get_marker() == ('o' if said else 'None')

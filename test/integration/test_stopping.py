@@ -1,0 +1,204 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+However the installed driver is ended, it ends the same way (issue 20).
+
+SIGINT once or twice, SIGTERM, SIGHUP, and its parent's death (SIGKILL or SIGTERM to the parent,
+as a launch or `ros2 run` that dies without stopping its children): the device's last command
+is zero torque, the built-in simulator's pty directory is removed, no process is left, and the
+exit code is 0.
+"""
+import os
+import pathlib
+import re
+import signal
+import subprocess
+import sys
+
+from harness import dds_shm
+from harness.driver import (
+    DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for, WAIT_S)
+from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+import pytest
+
+pytestmark = pytest.mark.integration
+
+BASE = 'kraft_master_base'
+WRENCH = (3.0, -2.0, 4.0, 0.05, -0.1, 0.08)
+SIM_DIRECTORY = re.compile(r'simulated hand controller on (\S+)/tty')
+ENDINGS = {
+    'SIGINT': [signal.SIGINT],
+    'SIGINT twice': [signal.SIGINT, signal.SIGINT],
+    'SIGTERM': [signal.SIGTERM],
+    'SIGHUP': [signal.SIGHUP],
+    'SIGTERM then SIGINT': [signal.SIGTERM, signal.SIGINT],
+}
+PR_SET_CHILD_SUBREAPER = 36  # linux/prctl.h
+
+# A parent that starts the command it is given, says its process id, and waits: as a launch or
+# `ros2 run` does. Its output goes to the file named first.
+PARENT = """
+import subprocess, sys, time
+with open(sys.argv[1], 'w') as output:
+    child = subprocess.Popen(sys.argv[2:], stdout=output, stderr=subprocess.STDOUT)
+print(child.pid, flush=True)
+time.sleep(3600)
+"""
+# The grandparent: a subreaper, so that the orphaned child becomes its child and its exit code
+# can be told. It prints the parent's and the child's ids, then each exit as "pid code".
+REAPER = f"""
+import ctypes, os, subprocess, sys
+ctypes.CDLL(None).prctl({PR_SET_CHILD_SUBREAPER}, 1, 0, 0, 0)
+parent = subprocess.Popen([sys.executable, '-c', {PARENT!r}, *sys.argv[1:]],
+                          stdout=subprocess.PIPE, text=True)
+print(parent.pid, parent.stdout.readline().strip(), flush=True)
+while True:
+    try:
+        pid, status = os.wait()
+    except ChildProcessError:
+        break
+    print(pid, os.waitstatus_to_exitcode(status), flush=True)
+"""
+
+
+def send(process, signals):
+    """Send each of `signals`, back to back."""
+    for sig in signals:
+        process.send_signal(sig)
+
+
+def descendants(pid):
+    """Return the ids of the processes whose parent is `pid`, theirs, and so on (Linux /proc)."""
+    children = pathlib.Path(f'/proc/{pid}/task/{pid}/children')
+    try:
+        found = [int(child) for child in children.read_text().split()]
+    except FileNotFoundError:
+        return []
+    return found + [grandchild for child in found for grandchild in descendants(child)]
+
+
+class Running:
+    """The installed driver on a simulated device in this process, and a client streaming."""
+
+    def __init__(self, prefix, start_driver=True):
+        """Start the simulator, the client and, if `start_driver`, the driver (force on)."""
+        self.domain_id = next_domain_id()
+        self.simulator = SimulatedKraftMaster(arm='right', operator='hold')
+        self.parameters = [('port', self.simulator.start()), ('arm', 'right'),
+                           ('force_enabled_at_start', 'true')]
+        self.driver = None
+        if start_driver:
+            self.driver = DriverProcess(prefix, self.domain_id, self.parameters)
+        self.client = RosClient(self.domain_id)
+
+    def command_torque(self):
+        """Stream a wrench until the device receives a non-zero command."""
+        self.client.wait_connected()
+        self.client.stream_wrench_until(WRENCH, BASE, lambda: any(self.last_command()))
+
+    def last_command(self):
+        """Return the torque counts of the newest command the device received."""
+        return self.simulator.received[-1][1].counts
+
+    def close(self):
+        """Stop everything, whatever state the test left it in."""
+        self.client.close()
+        if self.driver is not None:
+            self.driver.kill()
+        self.simulator.stop()
+
+
+@pytest.mark.parametrize('ending', ENDINGS)
+def test_a_stop_signal_zeroes_the_torque_and_exits_0(install_prefix, ending):
+    running = Running(install_prefix)
+    try:
+        running.command_torque()
+        send(running.driver.process, ENDINGS[ending])
+        code, output = running.driver.wait_exit()
+        assert code == 0, output
+        assert 'Traceback' not in output, output
+        # The driver has exited; the simulator may still be reading its last bytes.
+        wait_for(lambda: not any(running.last_command()), timeout=WAIT_S)
+    finally:
+        running.close()
+
+
+@pytest.mark.parametrize('ending', ENDINGS)
+def test_the_builtin_simulator_is_removed_however_the_driver_stops(install_prefix, ending):
+    driver = DriverProcess(install_prefix, next_domain_id(), [('port', 'sim')])
+    try:
+        lines = []
+        wait_for(lambda: lines.append(driver.process.stdout.readline()) or
+                 'Kraft Master on sim' in lines[-1] or driver.process.poll() is not None)
+        directory = SIM_DIRECTORY.search(''.join(lines))
+        assert directory, ''.join(lines)
+        assert os.path.isdir(directory[1])
+        send(driver.process, ENDINGS[ending])
+        code, output = driver.wait_exit()
+        assert code == 0, ''.join(lines) + output
+        assert 'Traceback' not in output, output
+        assert not os.path.exists(directory[1]), f'{directory[1]} was left behind'
+    finally:
+        driver.kill()
+
+
+class Orphaning:
+    """The driver started by a parent that a subreaper started: the parent can be killed."""
+
+    def __init__(self, prefix, domain_id, parameters, log_path):
+        """Start the chain; read the parent's and the driver's ids."""
+        command = [str(executable(prefix, 'kraft_master_node')), '--ros-args']
+        for name, value in parameters:
+            command += ['-p', f'{name}:={value}']
+        self.reaper = subprocess.Popen(
+            [sys.executable, '-c', REAPER, str(log_path), *command],
+            env=installed_env(prefix, domain_id), stdout=subprocess.PIPE, text=True)
+        self.parent, self.driver = (int(pid) for pid in self.reaper.stdout.readline().split())
+
+    def exits(self):
+        """Wait for the reaper (it ends with its last child); return {pid: exit code}."""
+        output, _ = self.reaper.communicate(timeout=WAIT_S)
+        return {int(pid): int(code) for pid, code in (line.split() for line in
+                                                      output.splitlines())}
+
+    def close(self):
+        """End whatever is still running."""
+        for pid in (self.driver, self.parent):
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+        dds_shm.end(self.reaper)
+
+
+@pytest.mark.parametrize('parent_signal', [signal.SIGKILL, signal.SIGTERM])
+def test_a_dead_parent_takes_the_driver_with_it(install_prefix, tmp_path, parent_signal):
+    running = Running(install_prefix, start_driver=False)
+    orphaning = Orphaning(install_prefix, running.domain_id, running.parameters,
+                          tmp_path / 'driver.log')
+    try:
+        running.command_torque()
+        os.kill(orphaning.parent, parent_signal)
+        exits = orphaning.exits()
+        output = (tmp_path / 'driver.log').read_text()
+        assert exits[orphaning.parent] == -parent_signal
+        assert exits[orphaning.driver] == 0, output
+        assert 'Traceback' not in output, output
+        wait_for(lambda: not any(running.last_command()), timeout=WAIT_S)
+    finally:
+        orphaning.close()
+        running.close()
+
+
+def test_a_dead_parent_takes_the_builtin_simulator_with_it(install_prefix, tmp_path):
+    log_path = tmp_path / 'driver.log'
+    orphaning = Orphaning(install_prefix, next_domain_id(), [('port', 'sim')], log_path)
+    try:
+        directory = wait_for(lambda: SIM_DIRECTORY.search(log_path.read_text()))[1]
+        wait_for(lambda: 'Kraft Master on sim' in log_path.read_text())
+        assert orphaning.driver in descendants(orphaning.reaper.pid)
+        os.kill(orphaning.parent, signal.SIGKILL)
+        assert orphaning.exits()[orphaning.driver] == 0, log_path.read_text()
+        assert not os.path.exists(directory), f'{directory} was left behind'
+    finally:
+        orphaning.close()
