@@ -102,7 +102,13 @@ def run_node(make_node, program, summary, table, args=None):
         watchdog = _exit_if_stuck(program, exit_code)
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            rclpy.try_shutdown()
+        except _rclpy.RCLError:
+            # rclpy's own signal handler can shut the context down between try_shutdown's
+            # check and its call (a parent's SIGTERM on a loaded machine did).
+            if rclpy.ok():
+                raise
         watchdog.cancel()
         stop_request.ignore_from_now_on()
     return exit_code
