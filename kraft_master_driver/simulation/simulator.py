@@ -19,6 +19,7 @@ each command arrives, and every few milliseconds when no command comes. With a b
 each reply leaves when the wire would have carried it.
 """
 import argparse
+import atexit
 import collections
 import gc
 import os
@@ -186,6 +187,8 @@ class SimulatedKraftMaster:
         self._thread = ServingThread(self._transport, self._wire_time, self._stats,
                                      on_data=self._receive, on_tick=self._advance)
         self._thread.start()
+        # However its owner ends (a signal between two of its statements), the directory goes.
+        atexit.register(self.stop)
         if self.priority:
             try:  # Linux: a thread id in place of a process id sets that thread alone
                 os.sched_setscheduler(self._thread.native_id, os.SCHED_FIFO,
@@ -196,6 +199,7 @@ class SimulatedKraftMaster:
 
     def stop(self):
         """Stop serving, close every descriptor, remove the temporary directory."""
+        atexit.unregister(self.stop)
         if self._thread is not None:
             self._thread.stop()
             self._thread = None
