@@ -53,6 +53,9 @@ STEP_M = 1e-6  # the master's travel per pose while moving: 1 mm/s
 MASTER_FRAME, ARM_FRAME, FT_FRAME = 'kraft_master_base', 'base_link', 'ft_sensor'
 ARM_START = (0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0)  # the arm's pose before enable: x, y, z, q
 FORCE_CODES = 5000  # measured_cf's fx is 1 mN times (its number modulo this, plus 1)
+# The bridge's input timeouts, longer than their defaults (0.1 s): on a shared machine a
+# stand-in descheduled for 0.1 s would end the run in FAULT; what is measured here is latency.
+TIMEOUTS = ('master_timeout:=1.0', 'arm_timeout:=1.0', 'ft_timeout:=1.0')
 CLUTCH_S = 1.0
 SETTLE_S = 0.5
 
@@ -245,7 +248,7 @@ def bridge_command(parameters, profile=None):
     else:
         command = [path] if path else [sys.executable, '-m', 'kraft_master_driver.nodes.teleop']
     command.append('--ros-args')
-    for parameter in ('force_feedback:=true', *parameters):
+    for parameter in (*TIMEOUTS, *parameters):
         command += ['-p', parameter]
     return command
 
@@ -445,7 +448,7 @@ def run(args, workdir):
         'count_travel_m': travel[:3],
         'count_turn_rad': turn[3:],
         'states': [state for _, state in states],
-        'bridge_log': (workdir / 'bridge.log').read_text().splitlines()[-5:],
+        'bridge_log': (workdir / 'bridge.log').read_text().splitlines()[-40:],
     }
 
 
@@ -483,6 +486,7 @@ def print_figures(figures, scale):
         print(f'{name:>26} {fmt(None if travel is None else 1e3 * travel, 4):>8} mm '
               f'{fmt(None if turn is None else math.degrees(turn), 4):>8} deg  {verdict}')
     print('operating states: ' + ' -> '.join(figures['states']))
+    print('the bridge\'s last lines:\n  ' + '\n  '.join(figures['bridge_log']))
 
 
 def main():
