@@ -384,7 +384,7 @@ def largest_step(targets, start_ns, end_ns, before=None):
 
 def run(args, workdir):
     """Run the bridge and the stand-ins once; return the figures."""
-    domain_id = 100 + os.getpid() % 100
+    domain_id = args.domain_id or 100 + os.getpid() % 100
     env = ros_env(domain_id)
     capacity = int((args.duration + CLUTCH_S + 4 * SETTLE_S + 120) * RATE_HZ)
     log = open(workdir / 'bridge.log', 'w')
@@ -431,8 +431,11 @@ def run(args, workdir):
         'duration_s': window_s,
         'pose_to_servo_cp_ms': distribution(
             pose_latencies(targets, master['sent'], pressed_ns)),
+        'poses_sent': int(np.count_nonzero((master['sent'] > 0) & (master['sent'] < pressed_ns))),
         'measured_cf_to_wrench_ms': distribution(
             force_latencies(master['wrenches'], arm['sent'], enabled_ns, pressed_ns)),
+        'readings_sent': int(np.count_nonzero((arm['sent'] > enabled_ns) &
+                                              (arm['sent'] < pressed_ns))),
         'bridge_cpu_per_input_us': 1e6 * bridge_cpu / inputs,
         'bridge_cores': bridge_cpu / window_s,
         'cpu_steal': steal,
@@ -448,7 +451,7 @@ def run(args, workdir):
         'count_travel_m': travel[:3],
         'count_turn_rad': turn[3:],
         'states': [state for _, state in states],
-        'bridge_log': (workdir / 'bridge.log').read_text().splitlines()[-40:],
+        'bridge_log': (workdir / 'bridge.log').read_text().splitlines()[-10:],
     }
 
 
@@ -459,12 +462,13 @@ def fmt(value, digits=3):
 def print_figures(figures, scale):
     print(f'bridge latency, {figures["duration_s"]:.1f} s at 1 kHz '
           f'({100 * figures["cpu_steal"]:.0f} % of the CPU stolen meanwhile):')
-    print(f'{"path":>26} {"p50 ms":>7} {"p99 ms":>7} {"max ms":>7} {"n":>6}')
-    for name, key in (('pose -> servo_cp', 'pose_to_servo_cp_ms'),
-                      ('measured_cf -> wrench', 'measured_cf_to_wrench_ms')):
+    print(f'{"path":>26} {"p50 ms":>7} {"p99 ms":>7} {"max ms":>7} {"answered":>17}')
+    for name, key, sent in (('pose -> servo_cp', 'pose_to_servo_cp_ms', 'poses_sent'),
+                            ('measured_cf -> wrench', 'measured_cf_to_wrench_ms',
+                             'readings_sent')):
         d = figures[key]
         print(f'{name:>26} {fmt(d["p50"]):>7} {fmt(d["p99"]):>7} {fmt(d["max"]):>7} '
-              f'{d["n"]:6d}')
+              f'{d["n"]:>7d} of {figures[sent]:>6d}')
     print(f'bridge CPU: {figures["bridge_cpu_per_input_us"]:.0f} us per input message '
           f'(3 per ms: pose, measured_cp, measured_cf), {figures["bridge_cores"]:.2f} cores')
     one_count = min(figures['count_travel_m']) * scale
@@ -486,7 +490,7 @@ def print_figures(figures, scale):
         print(f'{name:>26} {fmt(None if travel is None else 1e3 * travel, 4):>8} mm '
               f'{fmt(None if turn is None else math.degrees(turn), 4):>8} deg  {verdict}')
     print('operating states: ' + ' -> '.join(figures['states']))
-    print('the bridge\'s last lines:\n  ' + '\n  '.join(figures['bridge_log']))
+    print("the bridge's last lines:\n  " + '\n  '.join(figures['bridge_log']))
 
 
 def main():
@@ -495,6 +499,8 @@ def main():
                         help='measured seconds of following (default 20)')
     parser.add_argument('--set', metavar='NAME:=VALUE', nargs='*', default=[],
                         help='extra bridge parameters, e.g. rate_hz:=200')
+    parser.add_argument('--domain-id', type=int,
+                        help='ROS_DOMAIN_ID of the run (default: 100 + pid modulo 100)')
     parser.add_argument('--json', help='write the figures here too')
     parser.add_argument('--profile', metavar='PATH',
                         help='run the bridge under cProfile and write its statistics to PATH, '
