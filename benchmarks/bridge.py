@@ -436,6 +436,9 @@ def run(args, workdir):
             force_latencies(master['wrenches'], arm['sent'], enabled_ns, pressed_ns)),
         'readings_sent': int(np.count_nonzero((arm['sent'] > enabled_ns) &
                                               (arm['sent'] < pressed_ns))),
+        'largest_gap_ms': {
+            'master': float(np.diff(master['sent'][master['sent'] > 0]).max(initial=0) / 1e6),
+            'arm': float(np.diff(arm['sent']).max(initial=0) / 1e6)},
         'bridge_cpu_per_input_us': 1e6 * bridge_cpu / inputs,
         'bridge_cores': bridge_cpu / window_s,
         'cpu_steal': steal,
@@ -469,6 +472,9 @@ def print_figures(figures, scale):
         d = figures[key]
         print(f'{name:>26} {fmt(d["p50"]):>7} {fmt(d["p99"]):>7} {fmt(d["max"]):>7} '
               f'{d["n"]:>7d} of {figures[sent]:>6d}')
+    gaps = figures['largest_gap_ms']
+    print(f'largest gap between two publishes of a stand-in: master {gaps["master"]:.1f} ms, '
+          f'arm {gaps["arm"]:.1f} ms')
     print(f'bridge CPU: {figures["bridge_cpu_per_input_us"]:.0f} us per input message '
           f'(3 per ms: pose, measured_cp, measured_cf), {figures["bridge_cores"]:.2f} cores')
     one_count = min(figures['count_travel_m']) * scale

@@ -203,22 +203,33 @@ class TeleopNode(Node):
                     for subscription in self._inputs:
                         wait_set.add_subscription(subscription.handle)
                     wait_set.wait(INPUT_WAIT_NS)
-                    for subscription in self._inputs:
-                        self._take_all(subscription)
+                    while self._take_one_each():
+                        pass
         except Exception:  # noqa: B902 - waiting and taking fail once a signal ends the context
             if self._running and self.context.ok():
                 raise
 
-    def _take_all(self, subscription):
-        """Hand each message that came (CDR bytes, oldest first) to its handler."""
-        handle = subscription.handle
-        while (taken := handle.take_message(subscription.msg_type, True)) is not None:
+    def _take_one_each(self):
+        """
+        Hand the oldest message of each input (CDR bytes) to its handler; return whether any.
+
+        One of each in turn: were one input drained first, a pose stream the bridge cannot
+        keep up with would leave measured_cp untaken until it went stale (a FAULT, seen under
+        load).
+        """
+        taken_any = False
+        for subscription in self._inputs:
+            taken = subscription.handle.take_message(subscription.msg_type, True)
+            if taken is None:
+                continue
+            taken_any = True
             with self._lock:
                 try:
                     subscription.callback(taken[0])
                 except ValueError as error:
                     self.get_logger().error(f'{subscription.topic_name} ignored: {error}',
                                             throttle_duration_sec=1.0)
+        return taken_any
 
     def _refused(self, refusal):
         """Log a refused input in one line, then publish the state it left."""
