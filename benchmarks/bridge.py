@@ -4,15 +4,16 @@
 """
 The teleoperation bridge's latency, CPU and registration steps, every party in its own process.
 
-The installed kraft_master_teleop runs beside a stand-in master (publishes `pose` at 1 kHz,
-takes `wrench`) and a stand-in arm (publishes `measured_cp` and `measured_cf` at 1 kHz, takes
+The installed kraft_master_teleop runs beside a stand-in master (publishes `pose` at --rate,
+1 kHz by default, takes `wrench`) and a stand-in arm (publishes `measured_cp` and `measured_cf`
+at that rate, takes
 `servo_cp` and reports the newest one as its measured pose: an arm that tracks perfectly). Both
 stand-ins publish CDR bytes and take their inputs raw in a paced loop, as the driver does, so
 that they cost the machine little. The run:
 
 1. the master holds still; the bridge is enabled (the step at enable: the first target against
    the arm's pose);
-2. the master moves along x at 1 mm/s (1 um per pose) for --duration s: each pose's position
+2. the master moves along x by 1 um per pose (1 mm/s at 1 kHz) for --duration s: each pose's position
    says which pose it was, each measured_cf's force which reading it was, so that every
    servo_cp and wrench is matched with the input that caused it;
 3. the clutch is pressed for 1 s while the master goes on moving, then released (the step at
@@ -48,8 +49,7 @@ from kraft_master_driver.link import cdr  # noqa: E402
 from kraft_master_driver.simulation.model import Workspace  # noqa: E402
 from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
-RATE_HZ = 1000.0
-STEP_M = 1e-6  # the master's travel per pose while moving: 1 mm/s
+STEP_M = 1e-6  # the master's travel per pose while moving: 1 mm/s at 1 kHz
 MASTER_FRAME, ARM_FRAME, FT_FRAME = 'kraft_master_base', 'base_link', 'ft_sensor'
 ARM_START = (0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0)  # the arm's pose before enable: x, y, z, q
 FORCE_CODES = 5000  # measured_cf's fx is 1 mN times (its number modulo this, plus 1)
@@ -95,9 +95,10 @@ def count_resolution(arm='right'):
 class PacedPeer:
     """A node whose one thread publishes and takes raw, once per period (no executor)."""
 
-    def __init__(self, name):
+    def __init__(self, name, rate_hz):
         """Join the domain; SIGINT or SIGTERM ends run()."""
         import rclpy
+        self.rate_hz = rate_hz
         rclpy.init()
         self.node = rclpy.create_node(name)
         self.stop = False
@@ -130,7 +131,7 @@ class PacedPeer:
 
     def run(self, cycle):
         """Call cycle(i) once per period until stopped."""
-        period_ns = int(1e9 / RATE_HZ)
+        period_ns = int(1e9 / self.rate_hz)
         deadline, i = time.monotonic_ns(), 0
         while not self.stop:
             cycle(i)
@@ -148,10 +149,10 @@ class PacedPeer:
         rclpy.try_shutdown()
 
 
-def run_master(out, capacity):
-    """Publish pose at 1 kHz (still until SIGUSR1, then moving); record wrenches received."""
+def run_master(out, capacity, rate_hz):
+    """Publish pose at rate_hz (still until SIGUSR1, then moving); record the wrenches."""
     from geometry_msgs.msg import PoseStamped, WrenchStamped
-    peer = PacedPeer('bridge_benchmark_master')
+    peer = PacedPeer('bridge_benchmark_master', rate_hz)
     pose_pub = peer.publisher(PoseStamped, 'pose')
     wrench_sub = peer.raw_subscription(WrenchStamped, 'wrench')
     while not peer.stop and not (pose_pub.get_subscription_count() and
@@ -186,10 +187,10 @@ def run_master(out, capacity):
     peer.close()
 
 
-def run_arm(out, capacity):
-    """Publish measured_cp (the newest servo_cp) and a numbered measured_cf at 1 kHz."""
+def run_arm(out, capacity, rate_hz):
+    """Publish measured_cp (the newest servo_cp) and a numbered measured_cf at rate_hz."""
     from geometry_msgs.msg import PoseStamped, WrenchStamped
-    peer = PacedPeer('bridge_benchmark_arm')
+    peer = PacedPeer('bridge_benchmark_arm', rate_hz)
     pose_pub = peer.publisher(PoseStamped, 'measured_cp')
     ft_pub = peer.publisher(WrenchStamped, 'measured_cf')
     servo_sub = peer.raw_subscription(PoseStamped, 'servo_cp')
@@ -386,13 +387,14 @@ def run(args, workdir):
     """Run the bridge and the stand-ins once; return the figures."""
     domain_id = args.domain_id or 100 + os.getpid() % 100
     env = ros_env(domain_id)
-    capacity = int((args.duration + CLUTCH_S + 4 * SETTLE_S + 120) * RATE_HZ)
+    capacity = int((args.duration + CLUTCH_S + 4 * SETTLE_S + 120) * args.rate)
     log = open(workdir / 'bridge.log', 'w')
     bridge = subprocess.Popen(bridge_command(args.set, args.profile), env=env, stdout=log,
                               stderr=subprocess.STDOUT)
     outs = {role: str(workdir / role) for role in ('master', 'arm')}
     peers = {role: subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
-                                     '--capacity', str(capacity)], env=env)
+                                     '--capacity', str(capacity), '--rate', str(args.rate)],
+                                    env=env)
              for role, out in outs.items()}
     processes = [(peers['master'], signal.SIGINT), (peers['arm'], signal.SIGINT),
                  (bridge, signal.SIGTERM)]
@@ -424,7 +426,7 @@ def run(args, workdir):
     targets = arm['targets']
     window_s = (window_end - window_start) / 1e9
     # Inputs to the bridge in the window: a pose, a measured_cp and a measured_cf per period.
-    inputs = 3 * RATE_HZ * window_s
+    inputs = 3 * args.rate * window_s
     travel, turn = count_resolution()
     before_enable = np.array([ARM_START])
     return {
@@ -450,7 +452,8 @@ def run(args, workdir):
                                                released_ns + int(SETTLE_S * 1e9)),
         'following_step_m': STEP_M * args.scale,
         'step_while_following': largest_step(targets, window_start, window_end),
-        'master_travel_while_clutched_m': STEP_M * RATE_HZ * (released_ns - pressed_ns) / 1e9,
+        'master_travel_while_clutched_m': STEP_M * args.rate * (released_ns - pressed_ns) / 1e9,
+        'rate_hz': args.rate,
         'count_travel_m': travel[:3],
         'count_turn_rad': turn[3:],
         'states': [state for _, state in states],
@@ -463,7 +466,7 @@ def fmt(value, digits=3):
 
 
 def print_figures(figures, scale):
-    print(f'bridge latency, {figures["duration_s"]:.1f} s at 1 kHz '
+    print(f'bridge latency, {figures["duration_s"]:.1f} s at {figures["rate_hz"]:g} Hz '
           f'({100 * figures["cpu_steal"]:.0f} % of the CPU stolen meanwhile):')
     print(f'{"path":>26} {"p50 ms":>7} {"p99 ms":>7} {"max ms":>7} {"answered":>17}')
     for name, key, sent in (('pose -> servo_cp', 'pose_to_servo_cp_ms', 'poses_sent'),
@@ -476,7 +479,8 @@ def print_figures(figures, scale):
     print(f'largest gap between two publishes of a stand-in: master {gaps["master"]:.1f} ms, '
           f'arm {gaps["arm"]:.1f} ms')
     print(f'bridge CPU: {figures["bridge_cpu_per_input_us"]:.0f} us per input message '
-          f'(3 per ms: pose, measured_cp, measured_cf), {figures["bridge_cores"]:.2f} cores')
+          f'(pose, measured_cp, measured_cf each at {figures["rate_hz"]:g} Hz), '
+          f'{figures["bridge_cores"]:.2f} cores')
     one_count = min(figures['count_travel_m']) * scale
     one_turn = min(figures['count_turn_rad'])
     print(f'one pot count at the master\'s home pose: {1e3 * min(figures["count_travel_m"]):.3f}'
@@ -503,6 +507,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument('--duration', type=float, default=20.0,
                         help='measured seconds of following (default 20)')
+    parser.add_argument('--rate', type=float, default=1000.0,
+                        help="the stand-ins' publishing rate (Hz, default 1000)")
     parser.add_argument('--set', metavar='NAME:=VALUE', nargs='*', default=[],
                         help='extra bridge parameters, e.g. rate_hz:=200')
     parser.add_argument('--domain-id', type=int,
@@ -516,9 +522,9 @@ def main():
     parser.add_argument('--capacity', type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role == 'master':
-        return run_master(args.out, args.capacity)
+        return run_master(args.out, args.capacity, args.rate)
     if args.role == 'arm':
-        return run_arm(args.out, args.capacity)
+        return run_arm(args.out, args.capacity, args.rate)
     args.scale = next((float(p.split(':=', 1)[1]) for p in args.set
                        if p.startswith('scale:=')), 1.0)
     with tempfile.TemporaryDirectory() as workdir:

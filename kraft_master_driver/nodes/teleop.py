@@ -28,7 +28,7 @@ from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
 from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, TakenByLoopThread
-from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -40,8 +40,8 @@ MODES = ('pose', 'twist')
 _DEFAULT = Settings()
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
-# How long the input thread waits for a message before it checks whether to stop (ns).
-INPUT_WAIT_NS = 20_000_000
+# The longest the input thread waits for a message before it checks whether to stop (s).
+INPUT_WAIT_S = 0.02
 
 
 def _spec(name, description, **bounds):
@@ -149,30 +149,36 @@ class TeleopNode(Node):
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # Best effort subscriptions take reliable and best-effort publishers alike.
         inputs = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.servo_pub = (self.create_publisher(PoseStamped, 'servo_cp', reliable)
+        # No QoS event handlers: each is work for every wake-up of the executor (with them,
+        # its wait-set bookkeeping alone took about 0.3 of a core here).
+        quiet = {'event_callbacks': PublisherEventCallbacks(use_default_callbacks=False)}
+        self.servo_pub = (self.create_publisher(PoseStamped, 'servo_cp', reliable, **quiet)
                           if self.mode == 'pose'
-                          else self.create_publisher(TwistStamped, 'servo_cv', reliable))
-        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', reliable)
-        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', reliable)
+                          else self.create_publisher(TwistStamped, 'servo_cv', reliable, **quiet))
+        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', reliable, **quiet)
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', reliable, **quiet)
         self.state_pub = self.create_publisher(String, 'operating_state', QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
+            durability=DurabilityPolicy.TRANSIENT_LOCAL), **quiet)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable, **quiet)
+        quiet_input = SubscriptionEventCallbacks(use_default_callbacks=False)
         self._inputs = tuple(
             self.create_subscription(
                 msg_type, topic, handler, inputs, raw=True, callback_group=TakenByLoopThread(),
-                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+                event_callbacks=quiet_input)
             for msg_type, topic, handler in (
                 (PoseStamped, 'pose', self._on_pose),
                 (Vector3Stamped, 'master_energy', self._on_master_energy),
                 (PoseStamped, 'measured_cp', self._on_measured_cp),
                 (WrenchStamped, 'measured_cf', self._on_measured_cf)))
-        self.create_subscription(Bool, 'clutch', self._on_clutch, reliable)
+        self.create_subscription(Bool, 'clutch', self._on_clutch, reliable,
+                                 event_callbacks=quiet_input)
         if self.clutch_button >= 0:
-            self.create_subscription(Joy, 'joy', self._on_joy, reliable)
+            self.create_subscription(Joy, 'joy', self._on_joy, reliable,
+                                     event_callbacks=quiet_input)
         self.create_service(SetBool, 'enable', self._on_enable)
         self.create_service(Trigger, 'tare', self._on_tare)
-        self.create_timer(1.0 / config['rate_hz'], self._tick)
+        self._tick_period = 1.0 / config['rate_hz']
         self.create_timer(1.0, self._publish_diagnostics)
         self._publish_state()
         self._running = True
@@ -191,20 +197,32 @@ class TeleopNode(Node):
     # -- inputs ----------------------------------------------------------------------
 
     def _take_inputs(self):
-        """Wait on the streaming inputs alone; handle each message as it comes, until stopped."""
+        """
+        Wait on the streaming inputs alone; handle each message as it comes, until stopped.
+
+        The ticks (_tick, at rate_hz on the steady clock) run here too, between messages: as an
+        executor timer each woke the executor, whose wait-set bookkeeping took about 2 ms of a
+        loaded machine's CPU per wake-up (benchmarks/bridge.py --profile).
+        """
         try:
             with ExitStack() as in_use:
                 in_use.enter_context(self.context.handle)
                 for subscription in self._inputs:
                     in_use.enter_context(subscription.handle)
                 wait_set = _rclpy.WaitSet(len(self._inputs), 0, 0, 0, 0, 0, self.context.handle)
+                next_tick = time.monotonic() + self._tick_period
                 while self._running:
                     wait_set.clear_entities()
                     for subscription in self._inputs:
                         wait_set.add_subscription(subscription.handle)
-                    wait_set.wait(INPUT_WAIT_NS)
-                    while self._take_one_each():
-                        pass
+                    wait_s = min(next_tick - time.monotonic(), INPUT_WAIT_S)
+                    wait_set.wait(max(int(wait_s * 1e9), 0))
+                    self._take_one_each()
+                    now = time.monotonic()
+                    if now >= next_tick:
+                        self._tick()
+                        # Late (a descheduled thread): the next a period from now, no burst.
+                        next_tick = max(next_tick + self._tick_period, now)
         except Exception:  # noqa: B902 - waiting and taking fail once a signal ends the context
             if self._running and self.context.ok():
                 raise
