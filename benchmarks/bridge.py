@@ -6,16 +6,15 @@ The teleoperation bridge's latency, CPU and registration steps, every party in i
 
 The installed kraft_master_teleop runs beside a stand-in master (publishes `pose` at --rate,
 1 kHz by default, takes `wrench`) and a stand-in arm (publishes `measured_cp` and `measured_cf`
-at that rate, takes
-`servo_cp` and reports the newest one as its measured pose: an arm that tracks perfectly). Both
-stand-ins publish CDR bytes and take their inputs raw in a paced loop, as the driver does, so
-that they cost the machine little. The run:
+at that rate, takes `servo_cp` and reports the newest one as its measured pose: an arm that
+tracks perfectly). Both stand-ins publish CDR bytes and take their inputs raw in a paced loop,
+as the driver does, so that they cost the machine little. The run:
 
 1. the master holds still; the bridge is enabled (the step at enable: the first target against
    the arm's pose);
-2. the master moves along x by 1 um per pose (1 mm/s at 1 kHz) for --duration s: each pose's position
-   says which pose it was, each measured_cf's force which reading it was, so that every
-   servo_cp and wrench is matched with the input that caused it;
+2. the master moves along x by 1 um per pose (1 mm/s at 1 kHz) for --duration s: each pose's
+   position says which pose it was, each measured_cf's force which reading it was, so that
+   every servo_cp and wrench is matched with the input that caused it;
 3. the clutch is pressed for 1 s while the master goes on moving, then released (the step at
    release: a fresh registration must not jump by the master's travel meanwhile).
 
