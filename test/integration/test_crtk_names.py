@@ -1,6 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """The installed driver (port:=sim) under CRTK names: measured_js, measured_cp and servo_cf."""
+import bisect
 import math
 import time
 
@@ -34,14 +35,16 @@ class CrtkSession:
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.measured_js = client._record(JointState, 'measured_js', 2000, reliable)
         self.measured_cp = client._record(PoseStamped, 'measured_cp', 2000, reliable)
+        # (stamp ns, status) of each diagnostic status: the stamp is when it was published.
         self.statuses = []
-        # Whether each joint state carried torque, every one since the start (no deque's cap).
+        # (stamp ns, whether it carried torque) of every joint state since the start.
         self.torques = []
         client.node.create_subscription(
-            JointState, 'joint_states', lambda msg: self.torques.append(any(msg.effort)),
-            reliable)
-        client.node.create_subscription(DiagnosticArray, '/diagnostics',
-                                        lambda msg: self.statuses.extend(msg.status), 10)
+            JointState, 'joint_states',
+            lambda msg: self.torques.append((stamp_ns(msg), any(msg.effort))), reliable)
+        client.node.create_subscription(
+            DiagnosticArray, '/diagnostics',
+            lambda msg: self.statuses.extend((stamp_ns(msg), s) for s in msg.status), 10)
         self.servo_cf = client.node.create_publisher(
             WrenchStamped, 'servo_cf',
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
@@ -64,21 +67,49 @@ class CrtkSession:
         f.x, f.y, f.z, m.x, m.y, m.z = (float(v) for v in wrench)
         self.servo_cf.publish(msg)
 
-    def stream_until(self, condition, **wrench):
-        """Publish servo_cf every few ms until `condition()` holds."""
+    def stream_until(self, condition, send=True, **wrench):
+        """Publish servo_cf (unless not `send`) every few ms until `condition()` holds."""
         def sent_and_checked():
-            self.send(**wrench)
+            if send:
+                self.send(**wrench)
             return condition()
         return self.client.wait(sent_and_checked)
 
     def torque_on(self):
-        return bool(self.torques) and self.torques[-1]
+        return bool(self.torques) and self.torques[-1][1]
 
-    def torques_over(self, count, **wrench):
-        """Stream servo_cf until `count` more joint states came; return their torque flags."""
-        since = len(self.torques)
-        self.stream_until(lambda: len(self.torques) >= since + count, **wrench)
-        return self.torques[since:]
+    def torques_after(self, since_ns, refused=False, send=True, **wrench):
+        """
+        Return the torque flags of HELD_STATES joint states that came after since_ns.
+
+        refused: since_ns is a moment from which on every state must carry no torque. Else
+        since_ns is when a refused input began to be sent, and the states counted follow the
+        first HELD_STATES states stamped after it in a row without torque (a state without
+        torque can also come of a late cycle before the refused input arrived). This client
+        may lag the driver by many states: only the stamps say which came after; the states
+        arrive in the order of their stamps.
+        """
+        scan, run_start, end = [None], [None], [None]
+
+        def found():
+            if scan[0] is None:
+                scan[0] = bisect.bisect_right(self.torques, (since_ns, True))
+            while scan[0] < len(self.torques):
+                index, torque = scan[0], self.torques[scan[0]][1]
+                scan[0] += 1
+                if refused:
+                    end[0] = index
+                    return True
+                run_start[0] = None if torque else (
+                    index if run_start[0] is None else run_start[0])
+                if run_start[0] is not None and index - run_start[0] + 1 >= HELD_STATES:
+                    end[0] = index + 1
+                    return True
+            return False
+        self.stream_until(found, send, **wrench)
+        start = end[0]
+        self.stream_until(lambda: len(self.torques) >= start + HELD_STATES, send, **wrench)
+        return [on for _, on in self.torques[start:start + HELD_STATES]]
 
     def close(self):
         self.client.close()
@@ -95,6 +126,10 @@ def crtk(install_prefix):
 
 def stamp(msg):
     return msg.header.stamp.sec, msg.header.stamp.nanosec
+
+
+def stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def same_stamp_pairs(originals, copies):
@@ -129,9 +164,11 @@ def test_servo_cf_gives_the_torques_j_transpose_f(crtk, frame_id):
     after_ns = time.time_ns() + 100_000_000
 
     def newest_with_torque():
-        state = client.joint_states[-1]
-        sec, nanosec = stamp(state)
-        return any(state.effort) and sec * 1_000_000_000 + nanosec > after_ns and state
+        # The torque a state carries was worked out a cycle before, from the pose then: take a
+        # state of a hand that has come to rest under the wrench.
+        previous, state = list(client.joint_states)[-2:]
+        still = np.abs(np.subtract(state.position, previous.position)).max() < 1e-5
+        return any(state.effort) and still and stamp_ns(state) > after_ns and state
     state = crtk.stream_until(newest_with_torque, frame_id=frame_id)
     force, moment = np.array(WRENCH[:3]), np.array(WRENCH[3:])
     if frame_id == WRIST:
@@ -145,8 +182,8 @@ def test_servo_cf_gives_the_torques_j_transpose_f(crtk, frame_id):
 def assert_held_at_zero(crtk, **bad):
     """Stream a bad servo_cf: torque goes to zero and stays there; a good one brings it back."""
     crtk.stream_until(crtk.torque_on)
-    crtk.stream_until(lambda: not crtk.torque_on(), **bad)
-    assert not any(crtk.torques_over(HELD_STATES, **bad)), 'a refused servo_cf gave torque'
+    since_ns = time.time_ns()
+    assert not any(crtk.torques_after(since_ns, **bad)), 'a refused servo_cf gave torque'
     crtk.stream_until(crtk.torque_on)
 
 
@@ -164,12 +201,9 @@ def test_a_bad_servo_cf_is_refused_with_zero_torque(crtk, bad):
 
 
 def test_servo_cf_that_stops_zeroes_the_torque(crtk):
-    client = crtk.client
     crtk.stream_until(crtk.torque_on)
-    client.wait(lambda: not crtk.torque_on())  # wrench_timeout, nothing sent meanwhile
-    since = len(crtk.torques)
-    client.wait(lambda: len(crtk.torques) >= since + HELD_STATES)
-    assert not any(crtk.torques[since:])
+    since_ns = time.time_ns()
+    assert not any(crtk.torques_after(since_ns, send=False))  # wrench_timeout after the last
 
 
 def test_a_publisher_on_wrench_and_one_on_servo_cf_are_two_sources(crtk):
@@ -177,14 +211,14 @@ def test_a_publisher_on_wrench_and_one_on_servo_cf_are_two_sources(crtk):
     crtk.stream_until(crtk.torque_on)
     second = client.node.create_publisher(
         WrenchStamped, 'wrench', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+    expected = ('torques zero: 2 publishers on /wrench and /servo_cf, only one wrench source '
+                'is allowed (allow_multiple_wrench_sources)')
     try:
-        since = len(crtk.statuses)
-        crtk.stream_until(lambda: not crtk.torque_on() and len(crtk.statuses) > since + 1)
-        status = crtk.statuses[-1]
-        assert status.message == (
-            'torques zero: 2 publishers on /wrench and /servo_cf, only one wrench source is '
-            'allowed (allow_multiple_wrench_sources)')
-        assert not any(crtk.torques_over(HELD_STATES))
+        refused_at = crtk.stream_until(lambda: next(
+            (stamp for stamp, status in reversed(crtk.statuses) if status.message == expected),
+            None))
+        # Every state after a status that says so carries no torque.
+        assert not any(crtk.torques_after(refused_at, refused=True))
     finally:
         client.node.destroy_publisher(second)
     crtk.stream_until(crtk.torque_on)
