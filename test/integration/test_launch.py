@@ -86,7 +86,8 @@ def installed_share(install_prefix, monkeypatch):
 
 @pytest.mark.parametrize('file_name, arguments, operator', [
     ('kraft_master.launch.py', {'arms', 'rsp', 'right_port', 'left_port', 'force_enabled',
-                                'right_params_file', 'left_params_file'}, 'sim_operator'),
+                                'right_params_file', 'left_params_file', 'crtk'},
+     'sim_operator'),
     ('teleop_demo.launch.py', {'arm', 'mode', 'rsp'}, 'operator'),
 ])
 def test_launch_description_declares_its_arguments(installed_share, file_name, arguments,
@@ -132,6 +133,13 @@ def test_each_driver_gets_its_params_file_and_the_arms_names(installed_share):
         assert files == [str(installed_share / 'config' / f'{arm}_arm.yaml')]
         assert {k: values[k] for k in driver_names(arm)} == driver_names(arm)
         assert values['sim_operator'] == 'push'
+        assert values['crtk_names'] is False
+
+
+def test_the_crtk_argument_gives_each_driver_the_crtk_names(installed_share):
+    description = load('kraft_master.launch.py').generate_launch_description()
+    context, nodes = expand(description, arms='both', crtk='true')
+    assert [node_parameters(context, node)[1]['crtk_names'] for node in nodes] == [True, True]
 
 
 def test_params_file_argument_replaces_the_shipped_one(installed_share, tmp_path):

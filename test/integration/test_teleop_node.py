@@ -3,6 +3,7 @@
 """The installed kraft_master_teleop, driven by a stand-in master and arm in this process."""
 import collections
 import math
+import time
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
@@ -136,9 +137,20 @@ class Rig:
         return positions([self.servo_cp[-1]])[0]
 
     def forget(self):
-        """Drop the commands and wrenches received so far, and any still on their way."""
-        count = len(self.wrenches) + 3
-        self.run_until(lambda: len(self.wrenches) >= count)
+        """
+        Drop the commands and wrenches received so far, and any still on their way.
+
+        Each topic arrives in order, but this client may lag behind the bridge by many
+        messages: wait until each stream that flows has brought one the bridge stamped after
+        now, then drop all.
+        """
+        since_ns = time.time_ns()
+        streams = [self.wrenches] + [s for s in (self.servo_cp, self.servo_cv) if s]
+
+        def stamped_after(messages):
+            stamp = messages[-1].header.stamp if messages else None
+            return stamp is not None and stamp.sec * 1_000_000_000 + stamp.nanosec > since_ns
+        self.run_until(lambda: all(stamped_after(s) for s in streams))
         self.servo_cp.clear()
         self.servo_cv.clear()
         self.wrenches.clear()
