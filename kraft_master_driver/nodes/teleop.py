@@ -15,6 +15,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.core.passivity import LinkMonitor
 from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
@@ -102,6 +103,8 @@ PARAMETERS = {
                        'by master_energy.'),
     'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
                         low=0.0, high=1000.0),
+    'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
+                            'files); false: wait for the enable service.'),
     'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
                           low=-1, high=127),
 }
@@ -127,6 +130,8 @@ class TeleopNode(Node):
             raise ParameterError(f'parameter {error}') from None
         self.mode = config['mode']
         self.clutch_button = config['clutch_button']
+        self.enable_at_start = config['enable_at_start']
+        self.pose_link = LinkMonitor()  # the master's pose: delay and loss on the way here
         self._clutch_inputs = {'clutch': False, 'joy': False}
         self._published_state = None
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -167,6 +172,8 @@ class TeleopNode(Node):
         self._publish_state()
 
     def _on_pose(self, msg):
+        stamp = msg.header.stamp
+        self.pose_link.add(stamp.sec * 1_000_000_000 + stamp.nanosec, time.time_ns())
         self._refused(self.bridge.master_pose(*_pose_values(msg), time.monotonic()))
         if self.bridge.following:
             self._publish_command()
@@ -252,13 +259,18 @@ class TeleopNode(Node):
         if text != self._published_state:
             self._published_state = text
             self.state_pub.publish(String(data=text))
+            if self.bridge.state == 'FAULT':
+                self.get_logger().error(text)
 
     def _tick(self):
         """Apply the timeouts; while not following, hold the arm and send the master zero."""
         now = time.monotonic()
-        self.bridge.check(now)
-        self._publish_state()
         bridge = self.bridge
+        if self.enable_at_start and bridge.enable(now) is None:
+            self.enable_at_start = False
+            self.get_logger().info(f'enabled at start: {bridge.describe()}')
+        bridge.check(now)
+        self._publish_state()
         if not bridge.following:
             self._publish_command()
             self._publish_wrench(bridge.master_wrench(now))
@@ -279,6 +291,11 @@ class TeleopNode(Node):
                   'slave energy out (J)': f'{port.energy_out:.4f}',
                   'slave energy dissipated (J)': f'{port.dissipated:.4f}',
                   'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+        link = self.pose_link.summary()
+        if link is not None:
+            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
+                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
+            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
         array = DiagnosticArray(status=[DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
             message=bridge.describe(),

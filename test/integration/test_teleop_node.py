@@ -319,6 +319,21 @@ def test_enable_is_refused_without_the_inputs(start_bridge):
     assert rig.state() == 'DISABLED: not enabled'
 
 
+def test_enable_at_start_waits_for_the_inputs_then_enables_once(start_bridge):
+    rig, _ = start_bridge([('enable_at_start', 'true')], silent=['measured_cf'])
+    # Every input but the F/T reading: still DISABLED, nothing sent to the arm.
+    rig.run_until(lambda: len(rig.wrenches) > 20)
+    assert rig.state() == 'DISABLED: not enabled' and not rig.servo_cp
+    rig.streams['measured_cf'] = True
+    rig.run_until(lambda: rig.state() == 'ENABLED' and rig.servo_cp)
+    np.testing.assert_array_equal(positions(rig.servo_cp)[0], ARM_HOME)
+    # Once: disabled, it stays so.
+    assert rig.enable(False).success
+    rig.forget()
+    rig.run_until(lambda: len(rig.wrenches) > 20)
+    assert rig.state() == 'DISABLED: disabled' and not rig.servo_cp
+
+
 def test_twist_mode_drives_toward_the_target_and_stops_when_clutched(start_bridge):
     rig, _ = start_bridge([('mode', 'twist'), ('twist_gain', '10.0')])
     assert rig.enable().success
