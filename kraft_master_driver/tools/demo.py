@@ -50,10 +50,12 @@ WALL_Z = ARM_PARAMETERS['wall.point'][0][2]  # m, the arm's wall below its start
 # The bridge: scale 1, the arm's force reflected one to one (as the earlier simulated slave
 # did itself), its slave port's energy at the arm's 500 Hz; the point-mass arm's tool keeps
 # its orientation. Its timeouts allow a loaded machine's stalls (a stale pose would register
-# the master anew, shifting the arm's stroke).
+# the master anew, shifting the arm's stroke; at 0.5 s a stale measured_cp faulted the bridge
+# with the machine's load average at 27 on 2 cores), and its tracking limit the wall: the
+# stroke commands the arm up to 40 mm past it.
 BRIDGE = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args',
-          '-p', 'rate_hz:=500.0', '-p', 'orientation:=fixed', '-p', 'master_timeout:=0.5',
-          '-p', 'arm_timeout:=0.5', '-p', 'ft_timeout:=0.5']
+          '-p', 'rate_hz:=500.0', '-p', 'orientation:=fixed', '-p', 'master_timeout:=2.0',
+          '-p', 'arm_timeout:=2.0', '-p', 'ft_timeout:=2.0', '-p', 'max_tracking_error:=0.2']
 DRIVER_NAME = 'kraft_master_node'
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 HOME = kinematics.forward(Workspace().home(), 'right')[:3, 3]  # the push's top
@@ -340,7 +342,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
 
 def _show(readout, processes, duration, log, screen):
     """Refresh the readout until `duration` s after the bridge was enabled; return the code."""
-    started = time.monotonic()
+    started = shown = time.monotonic()
     up = None
     while up is None or time.monotonic() - up < duration:
         time.sleep(REFRESH[screen.interactive] if up is not None else ENGAGE_REFRESH)
@@ -349,6 +351,9 @@ def _show(readout, processes, duration, log, screen):
             up = time.monotonic()
             cpu = [cpu_seconds(p.pid) for p in processes], time.process_time()
         now = time.monotonic()
+        if up is None and now - shown < REFRESH[screen.interactive]:
+            continue  # looking for the moment to enable: the readout at its own pace
+        shown = now
         if any(process.poll() is not None for process in processes):
             screen.show(log.new_lines(), ['a demo process ended early; see its messages'])
             return 1

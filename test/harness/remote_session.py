@@ -52,9 +52,11 @@ SLAVE = {'mass': 1.0, 'max_acceleration': 100.0}
 # The bridge: one to one, the tool's orientation kept (a point mass has none to follow), forces
 # up to its largest limit reflected (the earlier slave reflected them unlimited), timeouts that
 # a loaded machine's stalls do not trip (a stale pose registers the master anew), and the slave
-# port's energy at the arm's 500 Hz, as the earlier slave sent it.
-BRIDGE = {'orientation': 'fixed', 'max_force': 200.0, 'master_timeout': 0.5,
-          'arm_timeout': 0.5, 'ft_timeout': 0.5, 'rate_hz': 500.0, 'enable_at_start': 'true'}
+# port's energy at the arm's 500 Hz, as the earlier slave sent it; a tracking limit the wall
+# does not trip (it holds the arm short of its command, PAST m and more with passivity off).
+BRIDGE = {'orientation': 'fixed', 'max_force': 200.0, 'master_timeout': 2.0,
+          'arm_timeout': 2.0, 'ft_timeout': 2.0, 'rate_hz': 500.0, 'enable_at_start': 'true',
+          'max_tracking_error': 1.0}
 # Pose and master_energy at 500 Hz: half the messages for the relay (one Python process).
 PUBLISH_DECIMATION = 2
 # The driver admits wrenches this much older than the emulated one-way delay.

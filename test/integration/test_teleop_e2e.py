@@ -47,9 +47,11 @@ PENETRATION_TOLERANCE = 0.003  # m
 TORQUE_RESOLUTION = 1.5e-3  # N*m: the device's 1 mN*m counts, on th2 the sum of two
 # The bridge: enabled as soon as it can be (the master then rests at home), the point-mass
 # arm's orientation kept, impacts reflected unlimited by it (the driver's force_scale keeps
-# the torques low), timeouts a loaded machine's stalls do not trip.
+# the torques low), timeouts a loaded machine's stalls do not trip, and a tracking limit the
+# wall does not (it holds the arm short of its command, as deep as the master goes).
 BRIDGE = [('enable_at_start', 'true'), ('orientation', 'fixed'), ('max_force', '200.0'),
-          ('master_timeout', '0.5'), ('arm_timeout', '0.5'), ('ft_timeout', '0.5')]
+          ('master_timeout', '2.0'), ('arm_timeout', '2.0'), ('ft_timeout', '2.0'),
+          ('max_tracking_error', '1.0')]
 
 
 def actuator_target(offset):

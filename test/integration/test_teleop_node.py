@@ -43,12 +43,12 @@ class Rig:
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.servo_cp, self.servo_cv, self.wrenches, self.states = (
             collections.deque(maxlen=5000) for _ in range(4))
-        node.create_subscription(PoseStamped, 'servo_cp', lambda m, d=self.servo_cp: d.append(m),
-                                 reliable)
-        node.create_subscription(TwistStamped, 'servo_cv', lambda m, d=self.servo_cv: d.append(m),
-                                 reliable)
-        node.create_subscription(WrenchStamped, 'wrench', lambda m, d=self.wrenches: d.append(m),
-                                 reliable)
+        self.cutoff = 0  # ns: what the bridge stamped earlier is forgotten (forget())
+        for msg_type, topic, kept in ((PoseStamped, 'servo_cp', self.servo_cp),
+                                      (TwistStamped, 'servo_cv', self.servo_cv),
+                                      (WrenchStamped, 'wrench', self.wrenches)):
+            node.create_subscription(msg_type, topic, lambda m, d=kept: self._keep(m, d),
+                                     reliable)
         node.create_subscription(String, 'operating_state', lambda m: self.states.append(m.data),
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
@@ -135,14 +135,20 @@ class Rig:
             *positions(list(self.servo_cp)[-2:])))
         return positions([self.servo_cp[-1]])[0]
 
+    def _keep(self, msg, kept):
+        stamp = msg.header.stamp
+        if stamp.sec * 1_000_000_000 + stamp.nanosec >= self.cutoff:
+            kept.append(msg)
+
     def forget(self):
         """Drop the commands and wrenches received so far, and any still on their way."""
-        # The bridge publishes a wrench per F/T reading, the readings of a tick at once.
-        count = len(self.wrenches) + 20
-        self.run_until(lambda: len(self.wrenches) >= count)
+        # The bridge stamps each when it sends it, on this machine's clock: what it stamped
+        # before now was sent before now, whenever it comes.
+        self.cutoff = self.client.node.get_clock().now().nanoseconds
         self.servo_cp.clear()
         self.servo_cv.clear()
         self.wrenches.clear()
+        self.run_until(lambda: len(self.wrenches) > 3)
 
     def close(self):
         """Leave the domain."""
