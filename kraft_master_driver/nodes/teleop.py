@@ -23,11 +23,13 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.core.passivity import LinkMonitor
 from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
 from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, TakenByLoopThread
+from kraft_master_driver.nodes.ros_helpers import (
+    GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -118,6 +120,8 @@ PARAMETERS = {
                        'by master_energy.'),
     'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
                         low=0.0, high=1000.0),
+    'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
+                            'files); false: wait for the enable service.'),
     'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
                           low=-1, high=127),
 }
@@ -138,6 +142,8 @@ class TeleopNode(Node):
             raise ParameterError(f'parameter {error}') from None
         self.mode = config['mode']
         self.clutch_button = config['clutch_button']
+        self.enable_at_start = config['enable_at_start']
+        self.pose_link = LinkMonitor()  # the master's pose: delay and loss on the way here
         self._clutch_inputs = {'clutch': False, 'joy': False}
         self._published_state = None
         # The bridge and the publishers are used by the input thread and the executor alike.
@@ -146,6 +152,7 @@ class TeleopNode(Node):
         self._servo_cdr = cdr.StampedDoublesEncoder(settings.arm_frame,
                                                     7 if self.mode == 'pose' else 6)
         self._wrench_cdr = cdr.StampedDoublesEncoder(settings.master_frame, 6)
+        self._energy_cdr = cdr.StampedDoublesEncoder(settings.master_frame, 3)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # Best effort subscriptions take reliable and best-effort publishers alike.
         inputs = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -179,14 +186,15 @@ class TeleopNode(Node):
         self.create_service(SetBool, 'enable', self._on_enable)
         self.create_service(Trigger, 'tare', self._on_tare)
         self._tick_period = 1.0 / config['rate_hz']
-        self.create_timer(1.0, self._publish_diagnostics)
+        steady_timer(self, 1.0, self._publish_diagnostics)
         self._publish_state()
         self._running = True
         self._input_thread = threading.Thread(target=self._take_inputs, name='teleop_inputs')
         self._input_thread.start()
         self.get_logger().info(
             f'bridge in {self.mode} mode, scale {config["scale"]:g}, orientation '
-            f'{config["orientation"]}; DISABLED until the enable service is called')
+            f'{config["orientation"]}; DISABLED until the enable service is called'
+            + (' (enabled at start once it can be)' if self.enable_at_start else ''))
 
     def destroy_node(self):
         """Stop the input thread, then the node."""
@@ -243,7 +251,9 @@ class TeleopNode(Node):
             taken_any = True
             with self._lock:
                 try:
-                    subscription.callback(taken[0])
+                    # When DDS received it (system clock, ns), not when this thread took it.
+                    subscription.callback(
+                        taken[0], taken[1]['received_timestamp'] or time.time_ns())
                 except ValueError as error:
                     self.get_logger().error(f'{subscription.topic_name} ignored: {error}',
                                             throttle_duration_sec=1.0)
@@ -255,21 +265,22 @@ class TeleopNode(Node):
             self.get_logger().error(refusal, throttle_duration_sec=1.0)
         self._publish_state()
 
-    def _on_pose(self, data):
-        _, _, frame_id, values = POSE_STAMPED.decode(data)
+    def _on_pose(self, data, received_ns):
+        sec, nanosec, frame_id, values = POSE_STAMPED.decode(data)
+        self.pose_link.add(sec * 1_000_000_000 + nanosec, received_ns)
         self._refused(self.bridge.master_pose(frame_id, values[:3], values[3:],
                                               time.monotonic()))
         if self.bridge.following:
             self._publish_command()
 
-    def _on_master_energy(self, data):
+    def _on_master_energy(self, data, _received_ns):
         self.bridge.master_energy(VECTOR3_STAMPED.decode(data)[3][0])
 
-    def _on_measured_cp(self, data):
+    def _on_measured_cp(self, data, _received_ns):
         _, _, frame_id, values = POSE_STAMPED.decode(data)
         self._refused(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
 
-    def _on_measured_cf(self, data):
+    def _on_measured_cf(self, data, _received_ns):
         _, _, frame_id, values = cdr.decode_wrench_stamped(data)
         now = time.monotonic()
         self._refused(self.bridge.ft_reading(frame_id, values, now))
@@ -314,11 +325,6 @@ class TeleopNode(Node):
 
     # -- outputs ---------------------------------------------------------------------
 
-    def _stamp(self, msg, frame_id):
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = frame_id
-        return msg
-
     def _now(self):
         """Return this node's clock now as (sec, nanosec), for a header's stamp."""
         return divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
@@ -344,14 +350,19 @@ class TeleopNode(Node):
         if text != self._published_state:
             self._published_state = text
             self.state_pub.publish(String(data=text))
+            if self.bridge.state == 'FAULT':
+                self.get_logger().error(text)
 
     def _tick(self):
         """Apply the timeouts; while not following, hold the arm and send the master zero."""
         with self._lock:
             now = time.monotonic()
-            self.bridge.check(now)
-            self._publish_state()
             bridge = self.bridge
+            if self.enable_at_start and bridge.enable(now) is None:
+                self.enable_at_start = False
+                self.get_logger().info(f'enabled at start: {bridge.describe()}')
+            bridge.check(now)
+            self._publish_state()
             if not bridge.following:
                 self._publish_command()
                 self._publish_wrench(bridge.master_wrench(now))
@@ -359,11 +370,13 @@ class TeleopNode(Node):
                 self._publish_wrench(bridge.master_wrench(now))
             port = bridge.port
             energies = port.energy_in, port.energy_out, port.dissipated
-        msg = self._stamp(Vector3Stamped(), bridge.settings.master_frame)
-        msg.vector.x, msg.vector.y, msg.vector.z = energies
-        self.energy_pub.publish(msg)
+        self.energy_pub.publish(self._energy_cdr.encode(*self._now(), energies))
 
     def _publish_diagnostics(self):
+        with self._lock:
+            self._publish_status()
+
+    def _publish_status(self):
         bridge, port = self.bridge, self.bridge.port
         level = DiagnosticStatus.ERROR if bridge.state == 'FAULT' else DiagnosticStatus.OK
         values = {'state': bridge.state, 'reason': bridge.reason, 'mode': self.mode,
@@ -373,6 +386,11 @@ class TeleopNode(Node):
                   'slave energy out (J)': f'{port.energy_out:.4f}',
                   'slave energy dissipated (J)': f'{port.dissipated:.4f}',
                   'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+        link = self.pose_link.summary()
+        if link is not None:
+            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
+                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
+            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
         array = DiagnosticArray(status=[DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
             message=bridge.describe(),

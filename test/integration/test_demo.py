@@ -3,10 +3,10 @@
 """
 `make demo` as a user runs it: the demo module with its own processes, its output piped.
 
-A recorder on the demo's DDS domain keeps every message the driver and the slave publish, so
-that the contact and the reflected force are checked in the messages themselves as well as in
-what the demo prints. The demo runs in a session of its own: once it has exited, no process
-of that session may be left.
+A recorder on the demo's DDS domain keeps every message the driver, the bridge and the
+simulated arm publish, so that the contact and the reflected force are checked in the messages
+themselves as well as in what the demo prints. The demo runs in a session of its own: once it
+has exited, no process of that session may be left.
 """
 import os
 import re
@@ -20,7 +20,7 @@ from harness import dds_shm, REPO
 from harness.driver import next_domain_id, wait_for
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
-from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS
+from kraft_master_driver.tools.demo import WALL_Z
 import numpy as np
 import pytest
 import rclpy
@@ -31,7 +31,6 @@ from sensor_msgs.msg import JointState
 pytestmark = pytest.mark.integration
 
 DURATION = 12.0  # s of teleoperation: three strokes of the simulated operator's push
-WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
 FORCE_SCALE = DRIVER_PARAMETERS['force_scale'].default
 TORQUE_RESOLUTION = 1.5e-3  # N*m: the device's 1 mN*m counts, on th2 the sum of two
 PAIRING_WINDOW = 0.1  # s: a torque matches a wrench stamped this close to its state
@@ -41,7 +40,7 @@ class Recorder:
     """Takes every message of the demo's topics from deep queues, without an executor."""
 
     TOPICS = (('joint_states', JointState), ('wrench', WrenchStamped),
-              ('slave_pose', PoseStamped))
+              ('measured_cp', PoseStamped))
 
     def __init__(self, domain_id):
         """Subscribe on `domain_id` and start taking in a thread."""
@@ -202,21 +201,22 @@ def test_the_demo_shows_contact_and_reflected_force_and_leaves_nothing(start_dem
     with open(log_path) as log_file:
         log = log_file.read()
     os.remove(log_path)
-    assert 'right Kraft Master on' in log and 'slave in position mode' in log
+    assert 'right Kraft Master on' in log and 'simulated arm in pose mode' in log
+    assert 'enable True: ENABLED' in log
     for line in log.splitlines():
         assert line in output
     assert output.rstrip().endswith(f"The processes' messages: {log_path}")
 
-    # What the demo showed: the slave at the wall and the force on the master, within 10 s.
+    # What the demo showed: the arm at the wall and the force on the master, within 10 s.
     shown = readouts(output)
     assert shown and shown[-1][0] >= DURATION
-    touching = [t for t, rows in shown if rows['slave (mm)'][2] <= 1e3 * WALL_Z
+    touching = [t for t, rows in shown if rows['arm (mm)'][2] <= 1e3 * WALL_Z
                 and rows['wrench on master (N)'][2] > 1.0 and any(rows['torques (N*m)'])]
     assert touching and touching[0] <= 10.0, output
 
-    # What was published: the slave stopped at the wall, which pushed back along +z.
-    slave_z = np.array([p.pose.position.z for p in demo.recorder.messages('slave_pose')])
-    assert WALL_Z - 0.003 < slave_z.min() < WALL_Z
+    # What was published: the arm stopped at the wall, which pushed back along +z.
+    arm_z = np.array([p.pose.position.z for p in demo.recorder.messages('measured_cp')])
+    assert WALL_Z - 0.003 < arm_z.min() < WALL_Z
     forces = np.array([(w.wrench.force.x, w.wrench.force.y, w.wrench.force.z)
                        for w in demo.recorder.messages('wrench')])
     assert forces[:, 2].min() >= 0.0 and forces[:, 2].max() > 1.0
@@ -226,7 +226,7 @@ def test_the_demo_shows_contact_and_reflected_force_and_leaves_nothing(start_dem
     # state before (the one the driver used), so they push the wrist up, out of the wall.
     # Only torques whose wrenches the recorder can have seen are paired: DDS sometimes matches
     # a late joiner's endpoints one announcement period (about 3 s) after the driver's, and
-    # what the slave sent before then never reached the recorder.
+    # what the bridge sent before then never reached the recorder.
     states = demo.recorder.messages('joint_states')
     wrench_times = np.array([seconds(w.header.stamp) for w in demo.recorder.messages('wrench')])
     recorded_from = wrench_times.min() + PAIRING_WINDOW
