@@ -3,7 +3,6 @@
 """The installed kraft_master_teleop, driven by a stand-in master and arm in this process."""
 import collections
 import math
-import time
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
