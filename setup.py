@@ -43,6 +43,7 @@ setup(
             'kraft_master_ctl = kraft_master_driver.tools.ctl:main',
             'kraft_master_link_emulator = kraft_master_driver.nodes.link_emulator:main',
             'kraft_master_teleop = kraft_master_driver.nodes.teleop:main',
+            'kraft_master_arm_sim = kraft_master_driver.nodes.arm_sim:main',
         ],
     },
 )
