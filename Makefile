@@ -97,6 +97,7 @@ docs: $(DEVELOPMENT)
 doc-figures: $(DEVELOPMENT)
 	$(VPY) doc/figures/session_diagram.py doc/figures/session.png
 	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
+	$(VPY) doc/figures/arm_contact.py doc/figures/arm_contact.png
 
 # Figures, not tests: each prints a table (loop and link also write JSON).
 bench: $(DEVELOPMENT)

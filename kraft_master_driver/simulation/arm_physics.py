@@ -48,6 +48,8 @@ QUATERNION_TOLERANCE = 0.01
 # out. Without it the wrist's last joint (about 3e-3 kg*m^2) chattered at half the step rate
 # under the rotational damping.
 ARMATURE = 0.1
+TABLE_TOP_THICKNESS = 0.03  # m
+TABLE_TOP_MASS = 1.0  # kg: with the default spring and damping, 23 Hz, damping ratio 0.35
 SINGULARITY_GUARD = 1e-6 * np.eye(6)  # m^2 added to J J^T's diagonal
 
 
@@ -93,8 +95,8 @@ class Table(NamedTuple):
     centre: tuple = (0.5, 0.0)  # m, x and y of the top's middle, arm base frame
     half_sizes: tuple = (0.25, 0.4)  # m, along x and y
     height: float = 0.4  # m, z of the top: 37 mm below the fingertips at HOME
-    stiffness: float = 20000.0  # N/m of the contact
-    damping: float = 100.0  # N*s/m of the contact
+    stiffness: float = 20000.0  # N/m of the top's spring
+    damping: float = 100.0  # N*s/m of the top's spring
     friction: float = 0.5
 
     def checked(self):
@@ -216,13 +218,23 @@ def build_model(table=Table(), gains=Gains()):
         joint.damping = [gains.joint_damping, 0.0, 0.0]
         joint.armature = ARMATURE
 
-    top = float(table.height)
+    # The table: a top on a vertical spring (its stiffness and damping in N/m and N*s/m, as
+    # given) over a fixed base. The fingertips meet the top through MuJoCo's default contact,
+    # which yields about 0.1 mm: the spring is the table's compliance.
+    height, (half_x, half_y), (centre_x, centre_y) = table.height, table.half_sizes, table.centre
+    base = height - TABLE_TOP_THICKNESS
     spec.worldbody.add_geom(
-        name='table', type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[table.half_sizes[0], table.half_sizes[1], top / 2.0],
-        pos=[table.centre[0], table.centre[1], top / 2.0], rgba=[0.62, 0.45, 0.3, 1],
-        solref=[-table.stiffness, -table.damping], solimp=[0.99, 0.99, 0.001, 0.5, 2],
-        friction=[table.friction, 0.005, 0.0001])
+        name='table_base', type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[half_x * 0.97, half_y * 0.97, base / 2.0], pos=[centre_x, centre_y, base / 2.0],
+        rgba=[0.45, 0.32, 0.2, 1])
+    top = spec.worldbody.add_body(name='table_top', gravcomp=1.0,
+                                  pos=[centre_x, centre_y, height - TABLE_TOP_THICKNESS / 2.0])
+    top.add_joint(name='table_spring', type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, 1],
+                  stiffness=[table.stiffness, 0.0, 0.0], damping=[table.damping, 0.0, 0.0])
+    top.add_geom(name='table', type=mujoco.mjtGeom.mjGEOM_BOX, mass=TABLE_TOP_MASS,
+                 size=[half_x, half_y, TABLE_TOP_THICKNESS / 2.0], rgba=[0.62, 0.45, 0.3, 1],
+                 friction=[table.friction, 0.005, 0.0001])
+    spec.add_exclude(bodyname1='world', bodyname2='table_top')
     return spec.compile()
 
 
@@ -239,13 +251,17 @@ class PandaArm:
         self.data = mujoco.MjData(self.model)
         model = self.model
         self.joint_ids = [model.joint(name).id for name in JOINTS]
-        self.dof = np.array([model.jnt_dofadr[j] for j in self.joint_ids])
-        self.qpos = np.array([model.jnt_qposadr[j] for j in self.joint_ids])
+        # The arm's joints come first in the model (the table's spring after them): slices,
+        # which index faster than arrays of indices.
+        assert [model.jnt_dofadr[j] for j in self.joint_ids] == list(range(7))
+        assert [model.jnt_qposadr[j] for j in self.joint_ids] == list(range(7))
+        self.dof = self.qpos = slice(0, 7)
         self.joint_range = model.jnt_range[self.joint_ids].copy()
         self.tcp = model.site('tcp').id
         self.ft_site = model.site('ft_sensor').id
         self.tool_body = model.body('tool').id
         self.table_geom = model.geom('table').id
+        self.table_spring = model.jnt_qposadr[model.joint('table_spring').id]
         self._force_adr = model.sensor_adr[model.sensor('ft_force').id]
         self._torque_adr = model.sensor_adr[model.sensor('ft_torque').id]
         self._rng = np.random.default_rng(seed)
@@ -254,6 +270,7 @@ class PandaArm:
         self._jacobian = np.zeros((6, 7))
         self._error = np.zeros(6)
         self._quat = np.zeros(4)
+        self._task_space = np.zeros(6)
         gains = self.gains
         self._stiffness = np.repeat([gains.translational_stiffness,
                                      gains.rotational_stiffness], 3)
@@ -368,29 +385,32 @@ class PandaArm:
 
     def _control(self):
         """Return the joint torques of the Cartesian impedance law (see the module's text)."""
-        model, data = self.model, self.data
+        model, data, arm = self.model, self.data, self.dof
+        jacobian, error, quat = self._jacobian, self._error, self._quat
         mujoco.mj_jacSite(model, data, self._jacp, self._jacr, self.tcp)
-        jacobian = self._jacobian
-        jacobian[:3], jacobian[3:] = self._jacp[:, self.dof], self._jacr[:, self.dof]
-        dq = data.qvel[self.dof]
-        error = self._error
+        jacobian[:3], jacobian[3:] = self._jacp[:, arm], self._jacr[:, arm]
+        dq = data.qvel[arm]
         error[:3] = _clamp_norm(data.site_xpos[self.tcp] - self.target_position,
                                 self.gains.max_position_error)
         # The rotation from the target to the tool, as axis times angle.
-        mujoco.mju_mat2Quat(self._quat, (self.tool_rotation() @ self.target_rotation.T).ravel())
-        mujoco.mju_quat2Vel(error[3:], self._quat, 1.0)
+        mujoco.mju_mat2Quat(quat, (data.site_xmat[self.tcp].reshape(3, 3)
+                                   @ self.target_rotation.T).ravel())
+        mujoco.mju_quat2Vel(error[3:], quat, 1.0)
         error[3:] = _clamp_norm(error[3:], self.gains.max_rotation_error)
         task = jacobian.T @ (-self._stiffness * error - self._damping * (jacobian @ dq))
-        # Nullspace of the task: I - J^T J^T+, with J^T+ = (J J^T)^-1 J (J has full rank
-        # away from singularities; the small diagonal keeps it bounded near them).
-        pseudo_inverse = np.linalg.solve(jacobian @ jacobian.T + SINGULARITY_GUARD, jacobian)
-        posture = (self._null_stiffness * (self.nullspace_posture - data.qpos[self.qpos])
+        # The posture torque less its part in the task: (I - J^T (J J^T)^-1 J) posture. J has
+        # full rank away from singularities; the small diagonal keeps it bounded near them.
+        posture = (self._null_stiffness * (self.nullspace_posture - data.qpos[arm])
                    - self._null_damping * dq)
-        wanted = task + posture - jacobian.T @ (pseudo_inverse @ posture)
-        self.task_torque += np.clip(wanted - self.task_torque, -self._rate_step,
-                                    self._rate_step)
-        return np.clip(self.task_torque + data.qfrc_bias[self.dof],
-                       -TORQUE_LIMITS, TORQUE_LIMITS)
+        gram = jacobian @ jacobian.T + SINGULARITY_GUARD
+        mujoco.mju_cholFactor(gram, 0.0)
+        mujoco.mju_cholSolve(self._task_space, gram, jacobian @ posture)
+        wanted = task + posture - jacobian.T @ self._task_space
+        change = np.minimum(np.maximum(wanted - self.task_torque, -self._rate_step),
+                            self._rate_step)
+        self.task_torque += change
+        return np.minimum(np.maximum(self.task_torque + data.qfrc_bias[arm], -TORQUE_LIMITS),
+                          TORQUE_LIMITS)
 
     def step(self, now=None):
         """Advance one timestep; `now` (s, the commands' clock) defaults to simulated time."""
@@ -424,6 +444,10 @@ class PandaArm:
     def sensor_rotation(self):
         """Return the sensor frame's rotation matrix (arm base frame)."""
         return self.data.site_xmat[self.ft_site].reshape(3, 3).copy()
+
+    def table_deflection(self):
+        """Return how far the table top is pushed down from its rest (m)."""
+        return -float(self.data.qpos[self.table_spring])
 
     def table_contact_force(self):
         """Return the table's force on the tool (N, arm base frame), from the contacts."""

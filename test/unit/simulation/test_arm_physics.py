@@ -140,7 +140,20 @@ def test_pressing_on_the_table_the_sensor_reads_the_contact_force(fresh):
     # The table pushes up with about the impedance's spring force, and the sensor reads it.
     assert contact[2] == pytest.approx(
         fresh.gains.translational_stiffness * 0.03, rel=0.1)
-    np.testing.assert_allclose(contact_reading(fresh), contact, atol=0.3)
+    np.testing.assert_allclose(contact_reading(fresh), contact, atol=0.05)
+    # The table top's spring carries it: the table's stiffness times how far the top sank.
+    assert contact[2] == pytest.approx(Table().stiffness * fresh.table_deflection(), rel=0.02)
+
+
+def test_a_softer_table_gives_way_more_under_the_same_push():
+    soft = PandaArm(table=Table(stiffness=2000.0, damping=30.0))
+    quaternion = soft.tool_quaternion()
+    target = soft.tool_position() - (0.0, 0.0, soft.tool_position()[2] - 0.4 + 0.03)
+    run(soft, 3.0, target, quaternion)
+    contact = soft.table_contact_force()
+    assert contact[2] > 5.0
+    assert soft.table_deflection() == pytest.approx(contact[2] / 2000.0, rel=0.02)
+    np.testing.assert_allclose(contact_reading(soft), contact, atol=0.05)
 
 
 def test_bias_and_noise_are_added_to_the_reading():
