@@ -66,9 +66,9 @@ PARAMETERS = {
                          'frame).'),
     'table.half_sizes': Spec(list(_TABLE.half_sizes), 'Half the table top along x and y (m).'),
     'table.height': Spec(_TABLE.height, 'Height of the table top (m, arm base frame).'),
-    'table.stiffness': Spec(_TABLE.stiffness, "Stiffness of the table's contact (N/m).",
+    'table.stiffness': Spec(_TABLE.stiffness, 'Stiffness of the spring under the table top (N/m).',
                             low=10.0, high=1e6),
-    'table.damping': Spec(_TABLE.damping, "Damping of the table's contact (N*s/m).",
+    'table.damping': Spec(_TABLE.damping, 'Damping of the spring under the table top (N*s/m).',
                           low=0.0, high=1e4),
     'table.friction': Spec(_TABLE.friction, 'Friction coefficient of the table and the '
                            'fingertips (1).', low=0.0, high=2.0),

@@ -116,8 +116,8 @@ class Table(NamedTuple):
 class Gains(NamedTuple):
     """The impedance: stiffness (N/m, N*m/rad), damping ratio, nullspace, joint damping."""
 
-    translational_stiffness: float = 400.0
-    rotational_stiffness: float = 20.0
+    translational_stiffness: float = 1000.0
+    rotational_stiffness: float = 30.0
     damping_ratio: float = 1.0
     nullspace_stiffness: float = 1.0
     joint_damping: float = 0.5  # N*m*s/rad at each joint: the gears' viscous friction

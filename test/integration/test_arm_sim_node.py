@@ -148,7 +148,7 @@ def chain(install_prefix):
 
 
 def test_the_arm_follows_the_master_and_the_table_pushes_back(chain):
-    master, arm, bridge = chain()
+    master, arm, bridge = chain(arm_parameters=[('translational_stiffness', '400.0')])
     start = master.arm_settled()
     # Held still, the sensor reads the tool's weight only: the bridge sends about zero.
     response = master.enable()
