@@ -106,6 +106,7 @@ bench: $(DEVELOPMENT)
 	$(VPY) benchmarks/loop.py --repeat 3
 	$(VPY) benchmarks/messages.py
 	$(VPY) benchmarks/report.py
+	$(VPY) benchmarks/arm_sim.py
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless
 # `make soak DURATION=600` says otherwise.
