@@ -42,7 +42,7 @@ TORQUE_RATE_LIMIT = 1000.0  # N*m/s, as franka_example_controllers limit it (1 N
 # about pi/2 and pi/4)
 HOME = (0.0, -0.785, 0.0, -2.356, 0.0, 0.0, 0.0)
 TIMESTEP = 0.001  # s
-TOOL_TIP = 0.153  # m from the flange along the hand's z: below the closed fingertips
+TOOL_TIP = 0.153  # m from the flange along the hand's z: the bottom of the closed fingertips
 QUATERNION_TOLERANCE = 0.01
 # kg*m^2 at each joint: a geared motor's reflected inertia, which the package's model leaves
 # out. Without it the wrist's last joint (about 3e-3 kg*m^2) chattered at half the step rate
