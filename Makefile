@@ -97,6 +97,7 @@ docs: $(DEVELOPMENT)
 doc-figures: $(DEVELOPMENT)
 	$(VPY) doc/figures/session_diagram.py doc/figures/session.png
 	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
+	$(VPY) doc/figures/arm_contact.py doc/figures/arm_contact.png
 
 # Figures, not tests: each prints a table (loop and link also write JSON).
 bench: $(DEVELOPMENT)
@@ -106,6 +107,7 @@ bench: $(DEVELOPMENT)
 	$(VPY) benchmarks/messages.py
 	$(VPY) benchmarks/report.py
 	$(VPY) benchmarks/bridge.py
+	$(VPY) benchmarks/arm_sim.py
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless
 # `make soak DURATION=600` says otherwise.

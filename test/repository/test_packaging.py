@@ -20,7 +20,9 @@ import pytest
 BIN = pathlib.Path(sys.executable).parent
 # rosdep keys of package.xml and the module each one installs (rosdistro's rosdep/python.yaml).
 ROSDEP_MODULES = {'python3-numpy': 'numpy', 'python3-serial': 'serial', 'python3-yaml': 'yaml',
-                  'python3-matplotlib': 'matplotlib', 'python3-rosbags-pip': 'rosbags'}
+                  'python3-matplotlib': 'matplotlib', 'python3-rosbags-pip': 'rosbags',
+                  'python3-mujoco-pip': 'mujoco',
+                  'python3-gymnasium-robotics-pip': 'gymnasium_robotics'}
 
 
 def console_scripts():
