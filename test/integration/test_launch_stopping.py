@@ -50,8 +50,8 @@ sys.exit(service.run())
 # (signal, to the process group?, times, the launch's own exit code). As launch 3.4.3 (jazzy)
 # ends: a Ctrl-C at a terminal reaches the whole group, and launch then leaves the SIGINT to it;
 # a SIGINT to the launch alone reaches its processes as SIGTERM 5 s later (sigterm_timeout).
-# On SIGTERM launch cancels itself and dies of the signal without stopping its processes, as
-# it does of the signals it does not handle: its nodes then stop on their parent-death signal.
+# On SIGTERM, as on the signals it does not handle, launch dies of the signal without stopping
+# its processes: its nodes then stop on their parent-death signal.
 ENDINGS = {
     'Ctrl-C': (signal.SIGINT, True, 1, 0),
     'Ctrl-C twice': (signal.SIGINT, True, 2, 0),
