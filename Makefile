@@ -20,6 +20,7 @@ CONSTRAINTS ?= --constraint $(LOCK)
 DURATION ?= 20
 DELAY_MS ?= 0
 PASSIVITY ?= off
+ARM ?= point-mass
 
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
@@ -60,7 +61,7 @@ $(PACKAGE_STAMP): setup.py setup.cfg | $(VPY)
 
 demo: $(RUNTIME)
 	$(VPY) -m kraft_master_driver.tools.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
-		--passivity $(PASSIVITY)
+		--passivity $(PASSIVITY) --arm $(ARM)
 
 test: $(DEVELOPMENT)
 	$(VPY) -m pytest -q

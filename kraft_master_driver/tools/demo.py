@@ -26,6 +26,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.nodes.arm_sim import PARAMETERS as MUJOCO_ARM_PARAMETERS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
 from kraft_master_driver.simulation.model import Workspace
@@ -47,6 +48,10 @@ DRIVER = [sys.executable, '-m', 'kraft_master_driver.nodes.driver', '--ros-args'
 # and measured_cf (frames base_link and ft_sensor, the bridge's defaults) can stand here.
 ARM = [sys.executable, '-m', 'kraft_master_driver.nodes.slave_sim']
 WALL_Z = ARM_PARAMETERS['wall.point'][0][2]  # m, the arm's wall below its start at 0
+# `--arm mujoco`: the Franka Panda in MuJoCo (doc/arm-sim.md), its fingertips 37 mm above the
+# table top at the start.
+MUJOCO_ARM = [sys.executable, '-m', 'kraft_master_driver.nodes.arm_sim']
+TABLE_Z = MUJOCO_ARM_PARAMETERS['table.height'].default  # m, the table top
 # The bridge: scale 1, the arm's force reflected one to one (as the earlier simulated slave
 # did itself), its slave port's energy at the arm's 500 Hz; the point-mass arm's tool keeps
 # its orientation. Its timeouts allow a loaded machine's stalls (a stale pose would register
@@ -56,6 +61,13 @@ WALL_Z = ARM_PARAMETERS['wall.point'][0][2]  # m, the arm's wall below its start
 BRIDGE = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args',
           '-p', 'rate_hz:=500.0', '-p', 'orientation:=fixed', '-p', 'master_timeout:=2.0',
           '-p', 'arm_timeout:=2.0', '-p', 'ft_timeout:=2.0', '-p', 'max_tracking_error:=0.2']
+# The bridge for the Panda: the hand's weight beyond its sensor taken out of the reading (the
+# arm node logs both figures), the target kept in a box in front of the arm, within its reach
+# hand down, that reaches 5 cm into the table. Its stroke down from the start commands the hand
+# 43 mm past the top, pressing the table with the controller's 1000 N/m.
+MUJOCO_BRIDGE = [*BRIDGE, '-p', 'tool_mass:=1.0045', '-p', 'tool_com:=[0.0, -0.0005, 0.0431]',
+                 '-p', 'workspace_min:=[0.2, -0.3, 0.35]',
+                 '-p', 'workspace_max:=[0.5, 0.3, 0.55]']
 DRIVER_NAME = 'kraft_master_node'
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 HOME = kinematics.forward(Workspace().home(), 'right')[:3, 3]  # the push's top
@@ -100,8 +112,14 @@ class Readout:
     calls the bridge's `enable`.
     """
 
-    def __init__(self, bridge_domain):
-        """Subscribe to the driver's state and diagnostics, the arm's pose, the bridge's state."""
+    def __init__(self, bridge_domain, mujoco=False):
+        """
+        Subscribe to the driver's state and diagnostics, the arm's pose, the bridge's state.
+
+        `mujoco`: the arm is the MuJoCo Panda, whose diagnostics (on the bridge's domain) tell
+        the table's force on its hand.
+        """
+        self.mujoco = mujoco
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C is ours
         self.node = rclpy.create_node('kraft_master_demo')
         self.arm_context = rclpy.Context()
@@ -114,6 +132,7 @@ class Readout:
         self.executor.add_node(self.enabler)
         self.latest = {}
         self.driver_status = {}
+        self.arm_status = {}
         state_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._subscriptions = [
@@ -127,7 +146,9 @@ class Readout:
                 (self.node, WrenchStamped, 'wrench', 1, None),
                 (self.node, DiagnosticArray, '/diagnostics', 10, None),
                 (self.arm_node, PoseStamped, 'measured_cp', 1, None),
-                (self.arm_node, String, 'operating_state', 1, state_qos))]
+                (self.arm_node, String, 'operating_state', 1, state_qos),
+                *([(self.arm_node, DiagnosticArray, '/diagnostics', 10, None)] if mujoco
+                  else []))]
 
     def take(self):
         """Take the newest message of each topic, and the driver's newest status."""
@@ -137,12 +158,15 @@ class Readout:
                         subscription.msg_type, False)) is not None:
                     self.latest[subscription.topic_name] = taken[0]
                     if subscription.topic_name == '/diagnostics':
-                        self._keep_driver_status(taken[0])
+                        self._keep_statuses(taken[0])
 
-    def _keep_driver_status(self, array):
+    def _keep_statuses(self, array):
         for status in array.status:
-            if status.name.partition(':')[0].rpartition('/')[2] == DRIVER_NAME:
+            name, _, what = status.name.partition(': ')
+            if name.rpartition('/')[2] == DRIVER_NAME:
                 self.driver_status = {kv.key: kv.value for kv in status.values}
+            elif what == 'simulated arm':
+                self.arm_status = {kv.key: kv.value for kv in status.values}
 
     def bridge_state(self):
         """Return the bridge's operating state ('ENABLED', ...), or None before it came."""
@@ -178,6 +202,16 @@ class Readout:
         arm = latest['/measured_cp'].pose.position
         link_errors = sum(int(status.get(f'link {k}', 0)) for k in (
             'timeouts', 'bad_crc', 'garbage_bytes', 'truncated', 'link_faults'))
+        if self.mujoco:
+            arm_lines = [
+                f'Panda (mm)        {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} {1e3 * arm.z:7.1f}'
+                f'   (table top at z = {1e3 * TABLE_Z:.1f})',
+                'table on hand (N)   ' + ' '.join(
+                    f'{float(v):7.2f}' for v in self.arm_status['table contact force (N)']
+                    .split(', ')) if self.arm_status else 'table on hand (N) -']
+        else:
+            arm_lines = [f'arm (mm)          {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} '
+                         f'{1e3 * arm.z:7.1f}   (wall at z = {1e3 * WALL_Z:.1f})']
         return [
             f'{seconds:5.1f} s | loop {status.get("loop rate (Hz)", "-")} Hz, period p99 '
             f'{status.get("period p99 (ms)", "-")} ms | link errors {link_errors} | '
@@ -186,8 +220,7 @@ class Readout:
             'torques (N*m)   ' + ' '.join(f'{v:8.3f}' for v in state.effort),
             'master wrist (mm) ' + (f'{1e3 * p.x:7.1f} {1e3 * p.y:7.1f} {1e3 * p.z:7.1f}'
                                     if p else '-'),
-            f'arm (mm)          {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} {1e3 * arm.z:7.1f}'
-            f'   (wall at z = {1e3 * WALL_Z:.1f})',
+            *arm_lines,
             'wrench on master (N) ' + (f'{wrench.x:7.2f} {wrench.y:7.2f} {wrench.z:7.2f}'
                                        if wrench else '-'),
         ]
@@ -278,14 +311,16 @@ def _stop_on_signal(*_):
     raise KeyboardInterrupt
 
 
-def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
+def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='point-mass'):
     """
     Run the processes for `duration` s once all are up (or until Ctrl-C), showing them.
 
     With delay_ms > 0 the bridge and the arm run on the next DDS domain and the link emulator
     relays between it and the driver's with half of delay_ms each way; passivity turns it on
-    at both ends (the driver's master port, the bridge's slave port).
+    at both ends (the driver's master port, the bridge's slave port). `arm`: 'point-mass'
+    (kraft_master_slave_sim) or 'mujoco' (kraft_master_arm_sim, with the bridge it needs).
     """
+    mujoco = arm == 'mujoco'
     log = ProcessLog()
     print(f"The processes' messages go to {log.path}, and are shown here.", file=out,
           flush=True)
@@ -319,9 +354,10 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
         processes[:0] = [
             subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age],
                              stdout=log.file, **child),
-            subprocess.Popen([*BRIDGE, *passive], stdout=log.file, **arm_child),
-            subprocess.Popen(ARM, stdout=log.file, **arm_child)]
-        readout = Readout(bridge_domain)
+            subprocess.Popen([*(MUJOCO_BRIDGE if mujoco else BRIDGE), *passive],
+                             stdout=log.file, **arm_child),
+            subprocess.Popen(MUJOCO_ARM if mujoco else ARM, stdout=log.file, **arm_child)]
+        readout = Readout(bridge_domain, mujoco)
         return _show(readout, processes, duration, log, screen)
     except KeyboardInterrupt:
         return 0
@@ -384,11 +420,16 @@ def main(argv=None):
                              'emulator')
     parser.add_argument('--passivity', choices=('on', 'off'), default='off',
                         help='time-domain passivity at both ends (default off)')
+    parser.add_argument('--arm', choices=('point-mass', 'mujoco'), default='point-mass',
+                        help="the simulated arm: 'point-mass' (default) or 'mujoco', the "
+                             'Franka Panda on its table')
     args = parser.parse_args(argv)
     print_examples()
-    print(f'Simulated teleoperation for {args.duration:g} s (Ctrl-C to stop) ...', flush=True)
+    panda = ' on the MuJoCo Franka Panda' if args.arm == 'mujoco' else ''
+    print(f'Simulated teleoperation{panda} for {args.duration:g} s (Ctrl-C to stop) ...',
+          flush=True)
     return teleoperate(args.duration, delay_ms=args.delay_ms,
-                       passivity=args.passivity == 'on')
+                       passivity=args.passivity == 'on', arm=args.arm)
 
 
 if __name__ == '__main__':
