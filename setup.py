@@ -31,17 +31,17 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'kraft_master_node = kraft_master_driver.nodes.driver:main',
+            'kraft_master_node = kraft_master_driver.nodes.commands:driver',
             'kraft_master_sim = kraft_master_driver.simulation.simulator:main',
-            'kraft_master_slave_sim = kraft_master_driver.nodes.slave_sim:main',
+            'kraft_master_slave_sim = kraft_master_driver.nodes.commands:slave_sim',
             'kraft_master_urdf = kraft_master_driver.tools.urdf_model:main',
             'kraft_master_report = kraft_master_driver.tools.report:main',
             'kraft_master_calibrate = kraft_master_driver.tools.calibrate:main',
             'kraft_master_demo = kraft_master_driver.tools.demo:main',
             'kraft_master_record = kraft_master_driver.tools.record:main',
             'kraft_master_ctl = kraft_master_driver.tools.ctl:main',
-            'kraft_master_link_emulator = kraft_master_driver.nodes.link_emulator:main',
-            'kraft_master_teleop = kraft_master_driver.nodes.teleop:main',
+            'kraft_master_link_emulator = kraft_master_driver.nodes.commands:link_emulator',
+            'kraft_master_teleop = kraft_master_driver.nodes.commands:teleop',
         ],
     },
 )

@@ -11,8 +11,11 @@ However a node is asked to stop, it stops the same way and exits 0: SIGINT (Ctrl
 (systemd, docker stop, a launch), SIGHUP (its terminal closed), and the SIGTERM the kernel sends
 when its parent dies (core.process.stop_with_parent). The first of these ends the spin; those
 that follow are ignored, so that a second Ctrl-C cannot cut short the node's own stop (the
-driver's zero-torque command, the closing of its port and of its simulator).
+driver's zero-torque command, the closing of its port and of its simulator). A stop signal
+that came while the console script was still importing the node (nodes.commands) ends it
+before it starts anything.
 """
+import contextlib
 import faulthandler
 import gc
 import os
@@ -21,11 +24,12 @@ import signal
 import sys
 import threading
 
-from kraft_master_driver.core.process import stop_with_parent
+from kraft_master_driver.core.process import stop_signal_remembered, stop_with_parent
 from kraft_master_driver.nodes.parameters import ParameterError, read_params_file, usage
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.signals import install_signal_handlers, SignalHandlerOptions
 import rclpy.utilities
 
 SHUTDOWN_LIMIT_S = 10.0
@@ -74,20 +78,27 @@ def run_node(make_node, program, summary, table, args=None):
     node = None
     exit_code = 0
     try:
+        stop_request.raise_from_now_on()
         params_files = [read_params_file(path) for path in ros_argument_files(argv)]
         extra = _program_arguments(argv)
         if extra:
             raise ParameterError(f'unexpected argument {extra[0]!r}: ROS arguments go after '
                                  f'--ros-args (see {program} --help)')
         try:
-            rclpy.init(args=argv)
+            rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
         except _rclpy.RCLError as error:
             raise ParameterError(f'cannot start: {_rcl_reason(error)}') from None
+        # The executor is made before rclpy's signal handlers are in (they shut the context
+        # down) and with the KeyboardInterrupt held: either stopped its constructor half-way,
+        # and the half-made executor's __del__ printed a traceback (2 stops in 8 at start-up).
+        with stop_request.deferred():
+            executor = rclpy.get_global_executor()
+        install_signal_handlers(SignalHandlerOptions.ALL)
         node = make_node(params_files)
         # The set-up's objects live as long as the process: leave them out of garbage
         # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
         gc.freeze()
-        rclpy.spin(node)
+        rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
@@ -116,7 +127,11 @@ def run_node(make_node, program, summary, table, args=None):
 
 class StopRequest:
     """
-    The signals that ask a node to stop: the first raises KeyboardInterrupt, later ones do not.
+    The signals that ask a node to stop: the first ends the spin, later ones change nothing.
+
+    The first raises KeyboardInterrupt once raise_from_now_on() is called, inside run_node's try:
+    one that came earlier (nodes.commands remembers those that came before these handlers) is
+    raised by that call.
 
     SIGINT and SIGTERM are also caught by rclpy.init's handlers, which wake the executor and
     then call these. rclpy leaves SIGHUP alone, and Python runs a handler only once the main
@@ -129,13 +144,31 @@ class StopRequest:
     def __init__(self):
         """Install the handlers (before rclpy.init, which calls them from its own)."""
         self.received = False
+        self._raising = False
         for signum in self.SIGNALS:
             signal.signal(signum, self._on_signal)
+        if stop_signal_remembered():
+            self.received = True
         read_end, write_end = os.pipe()
         os.set_blocking(write_end, False)
         signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
         threading.Thread(target=self._hangup_as_sigterm, args=(read_end,), name='sighup',
                          daemon=True).start()
+
+    def raise_from_now_on(self):
+        """Raise KeyboardInterrupt for the first signal, now if it has come already."""
+        self._raising = True
+        if self.received:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def deferred(self):
+        """Hold the first signal's KeyboardInterrupt while the block runs; raise it after."""
+        self._raising = False
+        try:
+            yield
+        finally:
+            self.raise_from_now_on()
 
     def ignore_from_now_on(self):
         """Ignore the signals: the interpreter's exit would restore their default, fatal one."""
@@ -146,7 +179,8 @@ class StopRequest:
     def _on_signal(self, _signum, _frame):
         if not self.received:
             self.received = True
-            raise KeyboardInterrupt
+            if self._raising:
+                raise KeyboardInterrupt
 
     @staticmethod
     def _hangup_as_sigterm(read_end):

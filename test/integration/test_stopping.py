@@ -77,6 +77,13 @@ def descendants(pid):
     return found + [grandchild for child in found for grandchild in descendants(child)]
 
 
+def takes_stop_signals(pid):
+    """Return True once process `pid` has handlers of its own for SIGTERM and SIGHUP (/proc)."""
+    status = pathlib.Path(f'/proc/{pid}/status').read_text()
+    caught = int(re.search(r'^SigCgt:\s*(\w+)', status, re.MULTILINE)[1], 16)
+    return all(caught >> (sig - 1) & 1 for sig in (signal.SIGTERM, signal.SIGHUP))
+
+
 class Running:
     """The installed driver on a simulated device in this process, and a client streaming."""
 
@@ -138,6 +145,23 @@ def test_the_builtin_simulator_is_removed_however_the_driver_stops(install_prefi
         assert code == 0, ''.join(lines) + output
         assert 'Traceback' not in output, output
         assert not os.path.exists(directory[1]), f'{directory[1]} was left behind'
+    finally:
+        driver.kill()
+
+
+@pytest.mark.parametrize('ending', ENDINGS)
+def test_a_stop_signal_while_the_driver_starts_ends_it_with_exit_0(install_prefix, ending):
+    # As soon as the console script takes the signals, before it has imported the node (rclpy
+    # and numpy): a launch stopped at once, a Ctrl-C while it starts.
+    driver = DriverProcess(install_prefix, next_domain_id(), [('port', 'sim')])
+    try:
+        wait_for(lambda: takes_stop_signals(driver.process.pid), interval=0.001)
+        send(driver.process, ENDINGS[ending])
+        code, output = driver.wait_exit()
+        assert code == 0, output
+        assert 'Traceback' not in output, output
+        directory = SIM_DIRECTORY.search(output)
+        assert not directory or not os.path.exists(directory[1]), output
     finally:
         driver.kill()
 
