@@ -293,10 +293,10 @@ class LinkEmulatorNode(Node):
                 values=[KeyValue(key=k, value=v) for k, v in self._summary(direction).items()]))
         self.diag_pub.publish(array)
 
-    def _log_summary(self):
+    def _log_summary(self, logger=None):
         for direction in DIRECTIONS:
             stats = self.lines[direction].stats.summary()
-            self.get_logger().info(f'{direction}: ' + ', '.join(
+            (logger or self.get_logger()).info(f'{direction}: ' + ', '.join(
                 f'{k} {v}' for k, v in stats.items()))
 
     def destroy_node(self):
@@ -309,10 +309,12 @@ class LinkEmulatorNode(Node):
         if self.slave_executor is not None:
             self.slave_node.destroy_node()
             rclpy.try_shutdown(context=self.slave_context)
+        exit_logger = rclpy.logging.get_logger(f'{self.get_name()}.exit')
         super().destroy_node()
-        # Logged once the node, and its rosout publisher, are gone: a Ctrl-C has shut the
-        # context down already, and rosout would refuse the lines with an error each.
-        self._log_summary()
+        # A Ctrl-C has shut the context down already, and rosout would refuse the lines with an
+        # error each: logged by a logger of another name, which no rosout publisher serves (the
+        # node's own was seen to outlive destroy_node once, in a full run).
+        self._log_summary(exit_logger)
 
 
 def main(args=None):
