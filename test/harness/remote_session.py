@@ -57,8 +57,11 @@ SLAVE = {'mass': 1.0, 'max_acceleration': 100.0}
 BRIDGE = {'orientation': 'fixed', 'max_force': 200.0, 'master_timeout': 2.0,
           'arm_timeout': 2.0, 'ft_timeout': 2.0, 'rate_hz': 500.0, 'enable_at_start': 'true',
           'max_tracking_error': 1.0}
-# Pose and master_energy at 500 Hz: half the messages for the relay (one Python process).
-PUBLISH_DECIMATION = 2
+# Pose and master_energy at 200 Hz. At 500 Hz the relay, bridge, arm and recorders (all Python)
+# kept both cores busy on an idle machine: the pose reached the bridge 93 ms late at median
+# where the emulator adds 50, 30 % of it missing, the arm's contact force 0.35 to 2 N; at
+# 200 Hz, 53 ms, 5.5 % and 3.3 N (test_remote_teleop.py, two runs each).
+PUBLISH_DECIMATION = 5
 # The driver admits wrenches this much older than the emulated one-way delay.
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 
