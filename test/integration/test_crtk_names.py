@@ -7,7 +7,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from harness.driver import DriverProcess, next_domain_id, RosClient
+from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
 from kraft_master_driver.core import kinematics
 import numpy as np
 import pytest
@@ -20,6 +20,10 @@ BASE, WRIST = 'kraft_master_base', 'kraft_master_wrist'
 WRENCH = (3.0, -2.0, 4.0, 0.05, -0.1, 0.08)
 # Joint states that must all carry zero torque once a refusal has taken hold.
 HELD_STATES = 200
+# The client takes messages for this long between two servo_cf and two checks (s): checking
+# after every message, it fell so far behind its six 1 kHz streams that the same stamp rarely
+# reached it under two names (no 50 pairs in 120 s).
+SEND_PERIOD_S = 0.002
 
 
 class CrtkSession:
@@ -73,7 +77,7 @@ class CrtkSession:
             if send:
                 self.send(**wrench)
             return condition()
-        return self.client.wait(sent_and_checked)
+        return wait_for(sent_and_checked, spin=lambda: self.client.spin(SEND_PERIOD_S))
 
     def torque_on(self):
         return bool(self.torques) and self.torques[-1][1]
