@@ -253,6 +253,16 @@ class Teleoperation:
         self.state, self.reason = 'CLUTCHED' if self.clutch_pressed else 'ENABLED', ''
         return None
 
+    def set_base_rotation(self, quaternion):
+        """Take base_rotation anew (x, y, z, w) while not driving the arm; return why not."""
+        if self.state in ('ENABLED', 'CLUTCHED'):
+            return 'base_rotation is fixed while enabled'
+        try:
+            self.base_rotation = rotation_parameter('base_rotation', quaternion)
+        except ValueError as error:
+            return str(error)
+        return None
+
     def disable(self):
         """Stop: nothing more is sent to the arm."""
         self.state, self.reason = 'DISABLED', 'disabled'

@@ -34,6 +34,7 @@ from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallba
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
@@ -65,6 +66,8 @@ PARAMETERS = {
     'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
                            "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
                            'w.'),
+    'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
+                                  'rotation of master_frame in arm_frame (needs tf2_ros).'),
     'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
                              'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
     'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
@@ -144,6 +147,7 @@ class TeleopNode(Node):
         self.clutch_button = config['clutch_button']
         self.enable_at_start = config['enable_at_start']
         self.pose_link = LinkMonitor()  # the master's pose: delay and loss on the way here
+        self._tf = self._tf_buffer() if config['base_rotation_from_tf'] else None
         self._clutch_inputs = {'clutch': False, 'joy': False}
         self._published_state = None
         # The bridge and the publishers are used by the input thread and the executor alike.
@@ -195,6 +199,18 @@ class TeleopNode(Node):
             f'bridge in {self.mode} mode, scale {config["scale"]:g}, orientation '
             f'{config["orientation"]}; DISABLED until the enable service is called'
             + (' (enabled at start once it can be)' if self.enable_at_start else ''))
+
+    def _tf_buffer(self):
+        """Return (tf2_ros, a Buffer this node's TransformListener fills)."""
+        try:
+            import tf2_ros
+        except ImportError:
+            raise ParameterError('base_rotation_from_tf needs tf2_ros, which is not installed '
+                                 '(it is not on PyPI): install ROS 2 tf2_ros or give '
+                                 'base_rotation') from None
+        buffer = tf2_ros.Buffer()
+        self._tf_listener = tf2_ros.TransformListener(buffer, self)
+        return tf2_ros, buffer
 
     def destroy_node(self):
         """Stop the input thread, then the node."""
@@ -303,10 +319,27 @@ class TeleopNode(Node):
             return
         self._set_clutch('joy', msg.buttons[self.clutch_button] == 1)
 
+    def _enable(self, now):
+        """Enable the bridge, with base_rotation from TF first if asked; return why not."""
+        if self._tf is not None and self.bridge.state not in ('ENABLED', 'CLUTCHED'):
+            tf2_ros, buffer = self._tf
+            settings = self.bridge.settings
+            try:
+                rotation = buffer.lookup_transform(
+                    settings.arm_frame, settings.master_frame, Time()).transform.rotation
+            except tf2_ros.TransformException as error:
+                return (f'no TF from {settings.master_frame} to {settings.arm_frame} '
+                        f'({error}): not enabled')
+            refusal = self.bridge.set_base_rotation(
+                (rotation.x, rotation.y, rotation.z, rotation.w))
+            if refusal is not None:
+                return f'TF {refusal}: not enabled'
+        return self.bridge.enable(now)
+
     def _on_enable(self, request, response):
         with self._lock:
             if request.data:
-                refusal = self.bridge.enable(time.monotonic())
+                refusal = self._enable(time.monotonic())
                 response.success = refusal is None
                 response.message = refusal or self.bridge.describe()
             else:
@@ -358,7 +391,7 @@ class TeleopNode(Node):
         with self._lock:
             now = time.monotonic()
             bridge = self.bridge
-            if self.enable_at_start and bridge.enable(now) is None:
+            if self.enable_at_start and self._enable(now) is None:
                 self.enable_at_start = False
                 self.get_logger().info(f'enabled at start: {bridge.describe()}')
             bridge.check(now)

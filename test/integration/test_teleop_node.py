@@ -2,6 +2,7 @@
 # Licensed under the Apache License, Version 2.0
 """The installed kraft_master_teleop, driven by a stand-in master and arm in this process."""
 import collections
+import importlib.util
 import math
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
@@ -15,6 +16,7 @@ from std_srvs.srv import SetBool, Trigger
 
 pytestmark = pytest.mark.integration
 
+TF2_ROS = importlib.util.find_spec('tf2_ros') is not None
 ARM_HOME = np.array([0.4, 0.1, 0.3])
 MASTER_START = np.array([0.12, -0.05, 0.2])
 # Generous timeouts: the test's own publishing pace must never trip them on a loaded machine.
@@ -368,3 +370,35 @@ def test_a_bad_parameter_exits_1_naming_it(install_prefix, name, value, fragment
     code, output = process.wait_exit()
     assert code == 1, output
     assert fragment in output and len(output.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(TF2_ROS, reason='tf2_ros is installed here: this refusal cannot happen')
+def test_base_rotation_from_tf_without_tf2_ros_exits_1_saying_so(install_prefix):
+    process = DriverProcess(install_prefix, next_domain_id(), [('base_rotation_from_tf', 'true')],
+                            name='kraft_master_teleop')
+    code, output = process.wait_exit()
+    assert code == 1, output
+    assert 'base_rotation_from_tf needs tf2_ros' in output
+    assert len(output.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(not TF2_ROS, reason='tf2_ros and tf2_msgs are not on PyPI: they cannot be '
+                    'installed on this machine')
+def test_base_rotation_from_tf_turns_master_motion_at_enable(start_bridge):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+    rig, _ = start_bridge([('base_rotation_from_tf', 'true')])
+    static = rig.client.node.create_publisher(TFMessage, '/tf_static', QoSProfile(
+        depth=1, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    transform = TransformStamped()
+    transform.header.frame_id, transform.child_frame_id = 'base_link', 'kraft_master_base'
+    transform.transform.rotation.z = transform.transform.rotation.w = math.sqrt(0.5)
+    static.publish(TFMessage(transforms=[transform]))
+    # Enable is refused until the bridge has heard the transform.
+    rig.run_until(lambda: rig.enable().success)
+    rig.run_until(lambda: rig.servo_cp)
+    rig.move_master((0.02, 0.0, 0.0))
+    # The master's +x is the arm's +y.
+    rig.run_until(lambda: np.allclose(positions([rig.servo_cp[-1]])[0],
+                                      ARM_HOME + (0.0, 0.02, 0.0), atol=1e-9))
