@@ -20,6 +20,7 @@ CONSTRAINTS ?= --constraint $(LOCK)
 DURATION ?= 20
 DELAY_MS ?= 0
 PASSIVITY ?= off
+ARM ?= point-mass
 
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
@@ -60,7 +61,7 @@ $(PACKAGE_STAMP): setup.py setup.cfg | $(VPY)
 
 demo: $(RUNTIME)
 	$(VPY) -m kraft_master_driver.tools.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
-		--passivity $(PASSIVITY)
+		--passivity $(PASSIVITY) --arm $(ARM)
 
 test: $(DEVELOPMENT)
 	$(VPY) -m pytest -q
@@ -97,6 +98,7 @@ docs: $(DEVELOPMENT)
 doc-figures: $(DEVELOPMENT)
 	$(VPY) doc/figures/session_diagram.py doc/figures/session.png
 	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
+	$(VPY) doc/figures/arm_contact.py doc/figures/arm_contact.png
 
 # Figures, not tests: each prints a table (loop and link also write JSON).
 bench: $(DEVELOPMENT)
@@ -105,6 +107,8 @@ bench: $(DEVELOPMENT)
 	$(VPY) benchmarks/loop.py --repeat 3
 	$(VPY) benchmarks/messages.py
 	$(VPY) benchmarks/report.py
+	$(VPY) benchmarks/bridge.py
+	$(VPY) benchmarks/arm_sim.py
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless
 # `make soak DURATION=600` says otherwise.

@@ -23,7 +23,8 @@ setup(
     # What the package imports (requirements.txt adds ROS 2 Jazzy from PyPI; package.xml
     # declares the same for rosdep).
     install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML', 'matplotlib', 'rosbags',
-                      'lz4', 'backports.zstd; python_version < "3.14"'],
+                      'lz4', 'backports.zstd; python_version < "3.14"', 'mujoco',
+                      'gymnasium-robotics'],
     zip_safe=True,
     maintainer='kraft_master_driver maintainers',
     maintainer_email='maintainers@kraft-master-driver.org',
@@ -42,6 +43,7 @@ setup(
             'kraft_master_ctl = kraft_master_driver.tools.ctl:main',
             'kraft_master_link_emulator = kraft_master_driver.nodes.commands:link_emulator',
             'kraft_master_teleop = kraft_master_driver.nodes.commands:teleop',
+            'kraft_master_arm_sim = kraft_master_driver.nodes.commands:arm_sim',
         ],
     },
 )

@@ -6,8 +6,9 @@ Force reflection across a delaying, lossy link: holding contact with the stiff w
 
 One row per round trip, loss and passivity setting, each a fresh session of
 test/harness/remote_session.py (two hosts as network namespaces joined by a veth pair; the
-driver and the link emulator on one, the slave on the other, the simulated device in this
-process on TCP): the operator pushes the master through the slave's wall, holds, releases.
+driver and the link emulator on one, the bridge and the simulated arm behind it on the other,
+the simulated device in this process on TCP): the operator pushes the master through the arm's
+wall, holds, releases.
 Figures, no asserts: a table and JSON (--json).
 """
 import argparse
@@ -70,7 +71,7 @@ def main(argv=None):
             print(' | '.join(form.format(row[key]) for _, key, form in COLUMNS), flush=True)
     if args.json:
         args.json.write_text(json.dumps({
-            'machine': platform.node(), 'slave': session.SLAVE,
+            'machine': platform.node(), 'slave': session.SLAVE, 'bridge': session.BRIDGE,
             'wall_below_m': session.WALL_BELOW, 'past_m': session.PAST, 'hold_s': session.HOLD,
             'window_s': session.WINDOW, 'rows': rows}, indent=1))
     return 0

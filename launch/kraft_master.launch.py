@@ -11,8 +11,9 @@ directory, the paper's nominal calibration). Every joint and frame name carries 
 ('right_shoulder_yaw', 'right_kraft_master_base'), in the driver's parameters and in
 urdf/kraft_master_<arm>.urdf alike, so two arms share one TF tree: wrenches sent to a driver must
 carry its prefixed frame_id. With rsp:=true a robot_state_publisher per arm publishes the arm's
-URDF links on TF from its joint_states. Everything the launch needs (parameter files,
-robot_state_publisher) is checked before any process starts.
+URDF links on TF from its joint_states. With crtk:=true each driver also answers under CRTK's
+names (measured_js, measured_cp, servo_cf; doc/ros-interface.md). Everything the launch needs
+(parameter files, robot_state_publisher) is checked before any process starts.
 """
 import os
 
@@ -58,7 +59,8 @@ def check_params_file(arm, path):
             f'{arm}_params_file: {path} calibrates the {calibration.arm} arm, not the {arm} arm')
 
 
-def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command, rsp):
+def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command, rsp,
+              crtk=False):
     """Return the driver of `arm` and, if `rsp`, its robot_state_publisher."""
     nodes = [Node(
         package=PACKAGE, executable='kraft_master_node', namespace=arm, output='screen',
@@ -66,7 +68,7 @@ def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command,
             params_file,
             {'port': port, 'force_enabled_at_start': force_enabled,
              'sim_operator': sim_operator, 'rate_command_enabled': rate_command,
-             **driver_names(arm)},
+             'crtk_names': crtk, **driver_names(arm)},
         ])]
     if rsp:
         share = get_package_share_directory(PACKAGE)
@@ -92,7 +94,7 @@ def _nodes(context):
     for arm in arms:
         nodes += arm_nodes(arm, params_files[arm], value(f'{arm}_port'),
                            value('force_enabled') == 'true', value('sim_operator'),
-                           value('rate_command') == 'true', rsp)
+                           value('rate_command') == 'true', rsp, value('crtk') == 'true')
     return nodes
 
 
@@ -120,6 +122,9 @@ def generate_launch_description():
                               description='Force output enabled at start-up.'),
         DeclareLaunchArgument('rate_command', default_value='false', choices=BOOLEANS,
                               description='Publish rate_command (after a set_center call).'),
+        DeclareLaunchArgument('crtk', default_value='false', choices=BOOLEANS,
+                              description='Also answer under CRTK names: measured_js, '
+                                          'measured_cp, servo_cf.'),
         DeclareLaunchArgument('sim_operator', default_value='hold', choices=list(OPERATORS),
                               description='Simulated operator hand, with port "sim".'),
         OpaqueFunction(function=_nodes),

@@ -5,8 +5,8 @@
 Draw the processes and topics of a teleoperation session (doc/figures/session.png).
 
 The boxes are the package's console scripts as `make demo` runs them (the simulated device,
-the driver, the simulated slave) with the link emulator that `make demo DELAY_MS=...` puts
-between the two DDS domains, and the recorder and report of a session. The names on the
+the driver, the bridge, the simulated arm) with the link emulator that `make demo DELAY_MS=...`
+puts between the two DDS domains, and the recorder and report of a session. The names on the
 arrows are those the nodes create (kraft_master_driver/nodes/). Matplotlib only, so that any
 machine with `make venv` redraws it: `make doc-figures`.
 """
@@ -61,7 +61,7 @@ def draw(path):
     ax.add_patch(Rectangle((0.64, 0.02), 0.35, 0.9, facecolor=SLAVE_SIDE, edgecolor='none'))
     ax.text(0.02, 0.895, "operator's side: DDS domain N", fontsize=10, color=EDGE,
             va='top', style='italic')
-    ax.text(0.98, 0.895, "slave's side: domain N + 1 behind the emulator\n"
+    ax.text(0.98, 0.895, "arm's side: domain N + 1 behind the emulator\n"
             '(make demo DELAY_MS=...), domain N without it', fontsize=10, color=EDGE,
             va='top', ha='right', style='italic')
     ax.text(0.5, 0.965, 'A teleoperation session: processes (boxes) and the topics between them',
@@ -74,8 +74,8 @@ def draw(path):
         'the driver: 1 kHz loop,\nJ^T F to torques')
     box(ax, 0.64, row, 0.17, 0.13, 'kraft_master_\nlink_emulator',
         '\ndelay, jitter, loss\n(optional)', dashed=True)
-    box(ax, 0.87, row, 0.19, 0.13, 'kraft_master_\nslave_sim',
-        '\nslave arm and wall\n(or a real bridge)')
+    box(ax, 0.87, row, 0.19, 0.13, 'kraft_master_\nteleop',
+        '\nthe bridge: clutch,\nmapping, slave port')
 
     arrow(ax, (0.185, row), (0.315, row), 'serial link\n(pty or TCP)', colour=SERIAL,
           offset=(0.0, 0.045), both=True)
@@ -100,9 +100,12 @@ def draw(path):
             'rate_command (optional), /diagnostics', ha='center', fontsize=9, color=TOPIC,
             family='monospace')
     arrow(ax, (0.41, row - 0.065), (0.41, out + 0.07), '')
-    arrow(ax, (0.87, row - 0.065), (0.87, out + 0.07), '')
-    ax.text(0.87, out + 0.02, 'slave_pose, /diagnostics', ha='center', fontsize=9,
-            color=TOPIC, family='monospace')
+    box(ax, 0.87, out, 0.19, 0.11, 'kraft_master_\nslave_sim',
+        '\nsimulated arm, F/T,\nwall (or a real arm)')
+    arrow(ax, (0.81, row - 0.065), (0.81, out + 0.055), 'servo_cp\n(servo_cv)',
+          offset=(-0.045, 0.0))
+    arrow(ax, (0.93, out + 0.055), (0.93, row - 0.065), 'measured_cp,\nmeasured_cf',
+          offset=(-0.06, 0.0))
 
     box(ax, 0.2, 0.12, 0.2, 0.09, 'kraft_master_record', 'a rosbag2 bag (mcap or sqlite3)')
     box(ax, 0.47, 0.12, 0.2, 0.09, 'kraft_master_report', 'a PNG and a CSV per arm')

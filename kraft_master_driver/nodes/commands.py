@@ -37,3 +37,8 @@ def link_emulator():
 def teleop():
     """kraft_master_teleop."""
     return _run('teleop')
+
+
+def arm_sim():
+    """kraft_master_arm_sim."""
+    return _run('arm_sim')

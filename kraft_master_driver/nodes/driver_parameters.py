@@ -86,6 +86,9 @@ PARAMETERS = {
     'allow_multiple_wrench_sources': Spec(
         False, 'Accept wrenches while more than one publisher is matched on wrench; by '
         'default torques are zero then, as two sources would interleave their forces.'),
+    'crtk_names': Spec(False, 'Also answer under CRTK names: publish measured_js and '
+                       'measured_cp (joint_states and pose again) and take servo_cf (as wrench; '
+                       'one source across both).'),
     'passivity': Spec(False, 'Time-domain passivity control of the reflected wrench, fed by '
                       'the slave_energy topic; false: plain J^T F.', read_only=False),
 }

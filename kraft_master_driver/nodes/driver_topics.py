@@ -4,7 +4,9 @@
 The topics of kraft_master_node: the state it publishes and the inputs its loop takes.
 
 Both handle CDR bytes themselves (link/cdr.py): the loop thread packs and unpacks only values,
-with the messages' layout worked out once.
+with the messages' layout worked out once. With crtk_names, the same state also goes out under
+CRTK's names (measured_js, measured_cp: the same bytes, published twice) and servo_cf is a
+second name of the wrench input; without it, no CRTK topic exists and the cycle does no more.
 """
 import time
 
@@ -44,6 +46,13 @@ class StateTopics:
                 (Vector3Stamped, 'master_energy'),
                 # Where diagnostic_updater publishes them, whatever the namespace.
                 (DiagnosticArray, '/diagnostics')))
+        # CRTK's names for the same state (crtk_names), else nothing is created or published.
+        self.crtk_pubs = None
+        if config['crtk_names']:
+            self.crtk_pubs = tuple(
+                node.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
+                for msg_type, topic in ((JointState, 'measured_js'),
+                                        (PoseStamped, 'measured_cp')))
         # The messages' layout, once; each cycle packs only its values.
         base = config['base_frame']
         self._joint_cdr = cdr.JointStateEncoder(base, joint_names, (6, 6, 6))
@@ -55,12 +64,17 @@ class StateTopics:
     def publish(self, result, estimate, centre):
         """Publish one cycle: joint state, pose, pots, energies, rate command if asked."""
         sec, nanosec = divmod(result.receive_ns, 1_000_000_000)
-        self.joint_pub.publish(self._joint_cdr.encode(
-            sec, nanosec, estimate.theta, estimate.velocity, self._effort(result.commanded_nm)))
+        joint_state = self._joint_cdr.encode(
+            sec, nanosec, estimate.theta, estimate.velocity, self._effort(result.commanded_nm))
+        self.joint_pub.publish(joint_state)
         pose = estimate.pose
-        self.pose_pub.publish(self._pose_cdr.encode(
+        pose_stamped = self._pose_cdr.encode(
             sec, nanosec, (pose[3], pose[7], pose[11],
-                           *kinematics.rotation_to_quaternion(estimate.rotation))))
+                           *kinematics.rotation_to_quaternion(estimate.rotation)))
+        self.pose_pub.publish(pose_stamped)
+        if self.crtk_pubs is not None:
+            self.crtk_pubs[0].publish(joint_state)
+            self.crtk_pubs[1].publish(pose_stamped)
         self.pots_pub.publish(self._pots_cdr.encode(
             sec, nanosec, [float(count) for count in result.frame.pots], (), ()))
         port = self.master_port
@@ -85,9 +99,10 @@ class InputTopics:
     The wrench and slave_energy subscriptions, taken by the loop thread, never the executor.
 
     take() hands every wrench that came to the force reflection and every slave energy to the
-    master port. While more than one publisher is matched on wrench (and
+    master port. While more than one publisher is matched on wrench and servo_cf together (and
     allow_multiple_wrench_sources is false) the wrenches are dropped and the force reflection
-    holds none: zero torque.
+    holds none: zero torque. servo_cf (with crtk_names) is checked as wrench is, and also takes
+    an empty frame_id, which crtk_python_client sends, as the base frame.
     """
 
     def __init__(self, node, config, force, master_port, frames):
@@ -101,17 +116,24 @@ class InputTopics:
         self.slave_link = LinkMonitor()
         self.wrench_sources = 0
         self._wrenches_refused = False
-        self._wrench_sub = node.create_subscription(
-            WrenchStamped, 'wrench', self._on_wrench,
-            # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        self._wrench_sub = self._subscribe_wrench(node, 'wrench')
+        self._servo_cf_sub = None
+        if config['crtk_names']:
+            self._servo_cf_sub = self._subscribe_wrench(node, 'servo_cf')
+            self.crtk_frames = {**frames, '': frames[config['base_frame']]}
         # All that came (the values are monotone; each one's delay counts, and one the next
         # overwrote would count as lost on the link).
         self._slave_energy_sub = node.create_subscription(
             Vector3Stamped, 'slave_energy', self._on_slave_energy,
             QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+
+    def _subscribe_wrench(self, node, topic):
+        return node.create_subscription(
+            WrenchStamped, topic, self._on_wrench,
+            # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
             callback_group=TakenByLoopThread(),
             event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
 
@@ -122,18 +144,29 @@ class InputTopics:
 
     def several_sources(self):
         """Say why wrenches are refused while several publishers are matched."""
-        return (f'{self.wrench_sources} publishers on {self._wrench_sub.topic_name}, only one '
+        topics = self._wrench_sub.topic_name
+        if self._servo_cf_sub is not None:
+            topics += f' and {self._servo_cf_sub.topic_name}'
+        return (f'{self.wrench_sources} publishers on {topics}, only one '
                 'wrench source is allowed (allow_multiple_wrench_sources)')
 
     def take(self):
         """Hand every wrench and slave energy that has arrived on, oldest first."""
-        handle = self._wrench_sub.handle
+        handle, servo_cf = self._wrench_sub.handle, self._servo_cf_sub
         with handle:
             sources = handle.get_publisher_count()
+            if servo_cf is not None:
+                with servo_cf.handle:
+                    sources += servo_cf.handle.get_publisher_count()
             refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
             while (taken := handle.take_message(WrenchStamped, True)) is not None:
                 if not refused:
                     self._on_wrench(taken[0])
+        if servo_cf is not None:
+            with servo_cf.handle:
+                while (taken := servo_cf.handle.take_message(WrenchStamped, True)) is not None:
+                    if not refused:
+                        self._on_wrench(taken[0], self.crtk_frames)
         if refused:
             self.force.clear()
         handle = self._slave_energy_sub.handle
@@ -150,8 +183,9 @@ class InputTopics:
                 self.log.info(f'{sources} publisher(s) on wrench: wrenches accepted')
             self._wrenches_refused = refused
 
-    def _on_wrench(self, data):
+    def _on_wrench(self, data, frames=None):
         """Check one wrench (CDR bytes) and hand it to the force reflection."""
+        frames = self.frames if frames is None else frames
         try:
             sec, nanosec, frame_id, values = cdr.decode_wrench_stamped(data)
         except ValueError as error:
@@ -159,7 +193,7 @@ class InputTopics:
             self.log.warning(f'wrench rejected, torques zeroed: {error}',
                              throttle_duration_sec=1.0)
             return
-        frame = self.frames.get(frame_id)
+        frame = frames.get(frame_id)
         tag = sec * 1_000_000_000 + nanosec
         skew = time.time_ns() - tag
         if tag and abs(skew) > self.config['max_stamp_skew'] * 1e9:
@@ -173,7 +207,7 @@ class InputTopics:
                                              stamp_age_ns=skew if tag else None)
         if frame is None:
             reason = (f'frame_id {frame_id!r} is not one of '
-                      f'{" or ".join(repr(f) for f in self.frames)}')
+                      f'{" or ".join(repr(f) for f in frames)}')
         if not accepted:
             self.log.warning(f'wrench rejected, torques zeroed: {reason}',
                              throttle_duration_sec=1.0)

@@ -1,19 +1,19 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-kraft_master_slave_sim: a simulated slave arm for topic-based teleoperation with the driver.
+kraft_master_slave_sim: a simulated arm that speaks the arm-side topics of the bridge.
 
-The slave is a point mass (its Cartesian wrist point) servoed toward a target with velocity
-and acceleration limits, in an environment with a stiff virtual wall and a soft box. In
-'position' mode it follows the master's `pose` (target = offset + scale * (master position -
-centre), orientation copied; the centre is fixed, by default the middle of the master's
-workspace, so that a master pose always gives the same target); in 'rate' mode it moves at
-scale * `rate_command`. Every cycle it publishes `slave_pose` and, on the master's `wrench`
-topic, the contact force mapped back to the master (scale * force, in the master's base frame;
-zero out of contact), which also keeps the driver's wrench watchdog fed while the slave lives.
+The arm is a point mass (its tool point) servoed toward a target with velocity and
+acceleration limits, in an environment with a stiff virtual wall and a soft box. As a real
+arm's ROS stack would, it takes `servo_cp` (pose mode: the target pose) or `servo_cv` (twist
+mode: the tool's velocity), both in `arm_frame`, and publishes `measured_cp` (the tool pose in
+`arm_frame`) and `measured_cf` (the wrench the tool applies to its wrist sensor, frame
+`ft_frame`: the environment's contact force turned into the tool's frame). It does not move
+before its first command, and holds still once the newest command is older than
+`command_timeout`. kraft_master_teleop maps the master to it and reflects its contacts.
 
-SlaveArm, Wall, SoftBox and MasterSlaveMap are plain Python (no ROS) and unit-tested; the node
-below them only moves messages.
+SlaveArm, Wall, SoftBox and ArmServo are plain Python (no ROS) and unit-tested; the node below
+them only moves messages.
 """
 import math
 import sys
@@ -22,24 +22,23 @@ import time
 from typing import NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
-from kraft_master_driver.core import kinematics
-from kraft_master_driver.core.passivity import LinkMonitor, SlavePort
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from kraft_master_driver.core.teleoperation import quaternion_to_rotation, Settings
 from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
 from kraft_master_driver.nodes.ros_helpers import steady_timer, TakenByLoopThread
-from kraft_master_driver.simulation.model import Workspace
 import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-MODES = ('position', 'rate')
+MODES = ('pose', 'twist')
 MAX_STEP = 0.002  # s, longest integration step
 MAX_CATCH_UP = 0.1  # s of simulated time per advance(); a longer stall is skipped, not replayed
 TICK_QUEUE = 10  # messages a topic taken by the ticks holds between two ticks
+QUATERNION_TOLERANCE = 0.01  # |q| of a servo_cp may differ from 1 by this much
 
 
 def _vector(name, values):
@@ -199,37 +198,6 @@ class SlaveArm:
         return self.contact_force()
 
 
-class MasterSlaveMap:
-    """
-    Master wrist -> slave target: offset + scale * (position - centre), axes aligned.
-
-    Forces go back through the transpose of the same map, scale * force, so the power the
-    master feels equals the power the slave exchanges with its environment. With centre None
-    the first master position becomes the centre.
-    """
-
-    def __init__(self, scale=1.0, offset=(0.0, 0.0, 0.0), centre=None):
-        """Check scale (> 0), offset (m) and centre (m, or None)."""
-        self.scale = _number('scale', scale, positive=True)
-        self.offset = _vector('offset', offset)
-        self.centre = None if centre is None else _vector('centre', centre)
-
-    def target(self, master_position):
-        """Return where the slave should be (m) when the master's wrist is at master_position."""
-        master_position = _vector('master position', master_position)
-        if self.centre is None:
-            self.centre = master_position
-        return self.offset + self.scale * (master_position - self.centre)
-
-    def velocity(self, master_velocity):
-        """Return the slave's rate in m/s for the master's rate command in m/s."""
-        return self.scale * np.asarray(master_velocity, dtype=float)
-
-    def reflect(self, slave_force):
-        """Return the force (N) for the master of a force (N) acting on the slave."""
-        return self.scale * np.asarray(slave_force, dtype=float)
-
-
 def integrate_quaternion(quaternion, angular_velocity, dt):
     """Turn a unit quaternion (x, y, z, w) by angular_velocity (rad/s, base frame) for dt s."""
     rotation = np.asarray(angular_velocity, dtype=float) * dt
@@ -248,121 +216,148 @@ def integrate_quaternion(quaternion, angular_velocity, dt):
     return tuple((turned / math.sqrt(float(turned @ turned))).tolist())
 
 
+class ArmServo:
+    """
+    What the arm does with its commands: follow the newest while fresh, else hold still.
+
+    Pose mode servoes the arm toward the commanded position and takes the commanded
+    orientation; twist mode moves it at the commanded velocity and turns the orientation at
+    the commanded angular velocity. Until the first command the arm holds where it started;
+    once the newest command is older than `timeout` s it holds where it was then. Times are
+    monotonic seconds given by the caller.
+    """
+
+    def __init__(self, arm, mode, timeout):
+        """Servo `arm` (a SlaveArm already reset) in `mode` ('pose' or 'twist')."""
+        if mode not in MODES:
+            raise ValueError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
+        self.arm = arm
+        self.mode = mode
+        self.timeout = _number('command_timeout', timeout, positive=True)
+        self.orientation = (0.0, 0.0, 0.0, 1.0)
+        self.hold = arm.position.copy()
+        self.command = None  # (position or (linear, angular), receipt time) of the newest
+
+    def pose_command(self, position, quaternion, now):
+        """Take a target pose (m; unit quaternion x, y, z, w); raise ValueError if bad."""
+        position = _vector('servo_cp position', position)
+        quaternion = np.array(quaternion, dtype=float)
+        norm = float(np.linalg.norm(quaternion))
+        if not np.all(np.isfinite(quaternion)) or abs(norm - 1.0) > QUATERNION_TOLERANCE:
+            raise ValueError(f'servo_cp orientation is not a unit quaternion: '
+                             f'{quaternion.tolist()}')
+        self.command = (position, now)
+        self.orientation = tuple((quaternion / norm).tolist())
+
+    def twist_command(self, linear, angular, now):
+        """Take a velocity (m/s) and angular velocity (rad/s); raise ValueError if bad."""
+        self.command = ((_vector('servo_cv linear', linear),
+                         _vector('servo_cv angular', angular)), now)
+
+    def refuse(self):
+        """Drop the command after a refused one: the arm holds where it is."""
+        self.command = None
+
+    def fresh(self, now):
+        """Return whether the newest command is younger than the timeout."""
+        return self.command is not None and now - self.command[1] <= self.timeout
+
+    def advance(self, elapsed, now):
+        """Run the arm `elapsed` s toward the command it has at `now`; return the contact force."""
+        if self.fresh(now):
+            self.hold = None
+            if self.mode == 'pose':
+                return self.arm.advance(elapsed, target=self.command[0])
+            linear, angular = self.command[0]
+            self.orientation = integrate_quaternion(self.orientation, angular, elapsed)
+            return self.arm.advance(elapsed, velocity=linear)
+        if self.hold is None:
+            self.hold = self.arm.position.copy()
+        return self.arm.advance(elapsed, target=self.hold)
+
+    def sensor_wrench(self, contact_force):
+        """Return the wrench (6) the tool applies to its wrist sensor, in the tool's frame."""
+        rotation = quaternion_to_rotation(self.orientation)
+        return np.concatenate([rotation.T @ np.asarray(contact_force, dtype=float),
+                               np.zeros(3)])
+
+
 # -- the node ---------------------------------------------------------------------------
 
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 TWIST_STAMPED = cdr.StampedDoublesDecoder('TwistStamped', 6)
-VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
-
-
-def master_centre(arm):
-    """Return the master's wrist position (m, 3 floats) in the middle of the arm's workspace."""
-    return kinematics.forward(Workspace().home(), arm)[:3, 3].tolist()
-
-
-def _parameter_table(node):
-    """PARAMETERS with the default centre of the arm given to `node` (right if none is)."""
-    given = node._parameter_overrides.get('arm')  # no public accessor in rclpy
-    arm = given.value if given is not None and given.value in kinematics.ARMS else 'right'
-    return dict(PARAMETERS, centre=PARAMETERS['centre']._replace(default=master_centre(arm)))
-
-
 _DEFAULT_LIMITS = SlaveLimits()
+_BRIDGE = Settings()
 
 PARAMETERS = {
-    'mode': Spec('position', "'position': follow the master's pose; 'rate': its rate_command."),
+    'mode': Spec('pose', "'pose': follow servo_cp, a target pose; 'twist': servo_cv, a "
+                 'velocity.', choices=MODES),
     'rate_hz': Spec(500.0, 'Simulation and publishing rate (Hz).'),
-    'scale': Spec(1.0, 'Slave motion per master motion (1); the reflected force is scale '
-                  'times the force on the slave.'),
-    'offset': Spec([0.0, 0.0, 0.0], 'Slave position when the master is at the centre (m).'),
-    'arm': Spec('right', "The master's arm, right or left: the default centre lies in its "
-                'workspace.', choices=kinematics.ARMS),
-    'centre_at_start': Spec(False, "The master's first pose the slave hears is the centre (it "
-                            'then depends on when the slave starts); else centre.'),
-    'centre': Spec(master_centre('right'), 'Master wrist position mapped to offset (m), base '
-                   "frame; default: the middle of the arm's workspace, where the simulated "
-                   "operator's hand rests (shown for the right arm)."),
-    'command_timeout': Spec(0.1, 'Rate mode: an older rate_command stops the slave (s).'),
-    'max_velocity': Spec(_DEFAULT_LIMITS.max_velocity, 'Slave speed limit (m/s).'),
-    'max_acceleration': Spec(_DEFAULT_LIMITS.max_acceleration, 'Slave servo acceleration '
+    'start_position': Spec([0.0, 0.0, 0.0], 'Where the tool starts, at rest (m, arm_frame); '
+                           'on the wall if behind it.'),
+    'command_timeout': Spec(0.1, 'An older command makes the arm hold still (s).'),
+    'max_velocity': Spec(_DEFAULT_LIMITS.max_velocity, 'Arm speed limit (m/s).'),
+    'max_acceleration': Spec(_DEFAULT_LIMITS.max_acceleration, 'Arm servo acceleration '
                              'limit (m/s^2); times mass, the largest force it pushes with.'),
-    'mass': Spec(_DEFAULT_LIMITS.mass, 'Moving mass of the slave (kg).'),
+    'mass': Spec(_DEFAULT_LIMITS.mass, 'Moving mass of the arm (kg).'),
     'position_gain': Spec(_DEFAULT_LIMITS.position_gain, 'Position loop gain (1/s).'),
     'velocity_gain': Spec(_DEFAULT_LIMITS.velocity_gain, 'Velocity loop gain (1/s).'),
-    'wall.point': Spec([0.0, 0.0, -0.04], 'A point of the wall plane (m), slave frame.'),
+    'wall.point': Spec([0.0, 0.0, -0.04], 'A point of the wall plane (m), arm_frame.'),
     'wall.normal': Spec([0.0, 0.0, 1.0], 'Wall normal, pointing into free space.'),
     'wall.stiffness': Spec(20000.0, 'Wall stiffness (N/m); 0 removes the wall.'),
     'wall.damping': Spec(100.0, 'Wall damping (N*s/m).'),
-    'box.centre': Spec([0.0, 0.12, 0.0], 'Centre of the soft box (m), slave frame.'),
+    'box.centre': Spec([0.0, 0.12, 0.0], 'Centre of the soft box (m), arm_frame.'),
     'box.half_sizes': Spec([0.1, 0.06, 0.04], 'Half sizes of the soft box along x, y, z (m).'),
     'box.stiffness': Spec(200.0, 'Soft box stiffness (N/m); 0 removes the box.'),
     'box.damping': Spec(20.0, 'Soft box damping (N*s/m).'),
-    'base_frame': Spec('kraft_master_base', "frame_id of the wrench: the driver's base_frame."),
-    'slave_frame': Spec('slave_world', 'frame_id of slave_pose.'),
-    'passivity': Spec(False, "Position mode: time-domain passivity control of the master's "
-                      'motion, fed by the master_energy topic; false: follow it as it comes.'),
-    'drift_gain': Spec(2.0, 'Rate at which passivity drift is given back with spare energy '
-                       '(1/s).', low=0.0, high=1000.0),
+    'arm_frame': Spec(_BRIDGE.arm_frame, 'frame_id of servo_cp, servo_cv and measured_cp: the '
+                      "arm's base frame (the bridge's arm_frame)."),
+    'ft_frame': Spec(_BRIDGE.ft_frame, "frame_id of measured_cf: the wrist sensor's frame, "
+                     "the tool's (the bridge's ft_frame)."),
 }
 
 
 class SlaveSimNode(Node):
-    """Runs a SlaveArm against the master's pose or rate command and reflects its contacts."""
+    """Runs a SlaveArm after servo_cp or servo_cv; publishes measured_cp and measured_cf."""
 
     def __init__(self, params_files=(), **kwargs):
-        """Declare and check the parameters, then start the fixed-rate simulation timer."""
+        """Declare and check the parameters, then start the fixed-rate simulation thread."""
         super().__init__('kraft_master_slave_sim', **kwargs)
-        config = declare_parameters(self, _parameter_table(self), params_files)
+        config = declare_parameters(self, PARAMETERS, params_files)
         try:
-            if config['mode'] not in MODES:
-                raise ValueError(f'mode must be one of {", ".join(MODES)}, '
-                                 f'got {config["mode"]!r}')
             rate_hz = _number('rate_hz', config['rate_hz'], positive=True)
-            self.timeout = _number('command_timeout', config['command_timeout'], positive=True)
-            self.map = MasterSlaveMap(
-                config['scale'], config['offset'],
-                None if config['centre_at_start'] else config['centre'])
             wall = Wall(config['wall.point'], config['wall.normal'], config['wall.stiffness'],
                         config['wall.damping'])
             box = SoftBox(config['box.centre'], config['box.half_sizes'],
                           config['box.stiffness'], config['box.damping'])
-            self.arm = SlaveArm(SlaveLimits(*(config[name] for name in SlaveLimits._fields)),
-                                wall if wall.stiffness > 0.0 else None,
-                                box if box.stiffness > 0.0 else None)
+            arm = SlaveArm(SlaveLimits(*(config[name] for name in SlaveLimits._fields)),
+                           wall if wall.stiffness > 0.0 else None,
+                           box if box.stiffness > 0.0 else None)
+            arm.reset(config['start_position'])
+            self.servo = ArmServo(arm, config['mode'], config['command_timeout'])
         except ValueError as error:
             raise ParameterError(f'parameter {error}') from None
-        self.port = SlavePort(_number('drift_gain', config['drift_gain']))
-        self.port.enabled = bool(config['passivity'])
-        self.pose_link = LinkMonitor()
-        self.mode = config['mode']
-        self.base_frame = config['base_frame']
-        self.slave_frame = config['slave_frame']
-        self.target = None
-        self.orientation = (0.0, 0.0, 0.0, 1.0)
-        self.rate = None  # (linear, angular, monotonic receipt time) of the last rate_command
+        self.arm_frame = config['arm_frame']
+        self.ft_frame = config['ft_frame']
+        self.refused = 0  # commands refused: wrong frame or bad values
 
         state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', state_qos)
-        self.pose_pub = self.create_publisher(PoseStamped, 'slave_pose', state_qos)
-        # The master's 1 kHz messages are taken raw by each tick, all that came since the last
-        # (each one's delay counts; the newest wins), as the driver takes its wrenches: the
-        # executor never wakes for them.
-        self._wrench_cdr = cdr.StampedDoublesEncoder(self.base_frame, 6)
-        self._pose_cdr = cdr.StampedDoublesEncoder(self.slave_frame, 7)
+        self.pose_pub = self.create_publisher(PoseStamped, 'measured_cp', state_qos)
+        self.wrench_pub = self.create_publisher(WrenchStamped, 'measured_cf', state_qos)
+        self._pose_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 7)
+        self._wrench_cdr = cdr.StampedDoublesEncoder(self.ft_frame, 6)
+        # The commands are taken raw by each tick, all that came since the last (the newest
+        # wins): the executor never wakes for them.
         msg_type, topic, on_message = (
-            (PoseStamped, 'pose', self._on_pose) if self.mode == 'position'
-            else (TwistStamped, 'rate_command', self._on_rate_command))
-        self._command_sub = self._taken_by_ticks(msg_type, topic, on_message)
-        # The slave port's energy in, out and dissipated (J), stamped as the wrench; the
-        # master's, taken like its pose.
-        self._energy_cdr = cdr.StampedDoublesEncoder(self.base_frame, 3)
-        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', state_qos)
-        self._master_energy_sub = self._taken_by_ticks(
-            Vector3Stamped, 'master_energy', self._on_master_energy)
+            (PoseStamped, 'servo_cp', self._on_servo_cp) if self.servo.mode == 'pose'
+            else (TwistStamped, 'servo_cv', self._on_servo_cv))
+        self._command_sub = self.create_subscription(
+            msg_type, topic, on_message,
+            QoSProfile(depth=TICK_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', state_qos)
         steady_timer(self, 1.0, self._publish_diagnostics)
-        if self.mode == 'rate':
-            self.arm.reset(self.map.offset)
         self.last_tick = time.monotonic()
         # A thread of its own paces the ticks: with an executor's timer the process took about
         # twice the CPU (measured).
@@ -370,50 +365,37 @@ class SlaveSimNode(Node):
         self._running = True
         self._thread = threading.Thread(target=self._run, name='slave_sim')
         self._thread.start()
-        centre = self.map.centre
         self.get_logger().info(
-            f'slave in {self.mode} mode at {rate_hz:g} Hz; wall '
-            f'{"on" if self.arm.wall else "off"}, soft box {"on" if self.arm.box else "off"}'
-            + ('' if self.mode == 'rate' else '; master centre ' + (
-                'its first pose' if centre is None
-                else '(' + ', '.join(f'{v:.4f}' for v in centre) + ') m')))
-
-    def _taken_by_ticks(self, msg_type, topic, on_message):
-        """Subscribe to `topic` for _take_all: raw, never run by the executor."""
-        return self.create_subscription(
-            msg_type, topic, on_message,
-            # A few ticks' worth: a message the next overwrote would count as lost on the link.
-            QoSProfile(depth=TICK_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+            f'simulated arm in {self.servo.mode} mode at {rate_hz:g} Hz, tool at '
+            f'({", ".join(f"{v:.4f}" for v in arm.position)}) m in {self.arm_frame}; wall '
+            f'{"on" if arm.wall else "off"}, soft box {"on" if arm.box else "off"}')
 
     def _take_all(self, subscription):
-        """Hand each message that came (CDR bytes, oldest first), with its receipt time, on."""
+        """Hand each command that came (CDR bytes, oldest first) on; refuse bad ones."""
         with subscription.handle:
             while (taken := subscription.handle.take_message(
                     subscription.msg_type, True)) is not None:
-                # When DDS received it (system clock, ns), not when this tick got to it.
-                received_ns = taken[1]['received_timestamp'] or time.time_ns()
                 try:
-                    subscription.callback(taken[0], received_ns)
+                    subscription.callback(taken[0])
                 except ValueError as error:
-                    self.get_logger().warning(f'{subscription.topic_name} ignored: {error}',
-                                              throttle_duration_sec=1.0)
+                    self.refused += 1
+                    self.servo.refuse()
+                    self.get_logger().error(f'{subscription.topic_name} refused, holding: '
+                                            f'{error}', throttle_duration_sec=1.0)
 
-    def _on_master_energy(self, data, _received_ns):
-        self.port.credit(VECTOR3_STAMPED.decode(data)[3][0])
+    def _checked_frame(self, frame_id):
+        if frame_id != self.arm_frame:
+            raise ValueError(f'frame_id {frame_id!r} is not arm_frame {self.arm_frame!r}')
 
-    def _on_pose(self, data, received_ns):
-        sec, nanosec, _, values = POSE_STAMPED.decode(data)
-        self.pose_link.add(sec * 1_000_000_000 + nanosec, received_ns)
-        self.target = self.map.target(values[:3])
-        self.orientation = values[3:]
-        if self.arm.position is None:
-            self.arm.reset(self.target)
+    def _on_servo_cp(self, data):
+        _, _, frame_id, values = POSE_STAMPED.decode(data)
+        self._checked_frame(frame_id)
+        self.servo.pose_command(values[:3], values[3:], time.monotonic())
 
-    def _on_rate_command(self, data, _received_ns):
-        values = TWIST_STAMPED.decode(data)[3]
-        self.rate = (self.map.velocity(values[:3]), np.array(values[3:]), time.monotonic())
+    def _on_servo_cv(self, data):
+        _, _, frame_id, values = TWIST_STAMPED.decode(data)
+        self._checked_frame(frame_id)
+        self.servo.twist_command(values[:3], values[3:], time.monotonic())
 
     def _run(self):
         """Tick every period until destroy_node() or the end of the ROS context."""
@@ -440,55 +422,30 @@ class SlaveSimNode(Node):
 
     def _tick(self):
         self._take_all(self._command_sub)
-        self._take_all(self._master_energy_sub)
         now = time.monotonic()
         elapsed, self.last_tick = min(now - self.last_tick, MAX_CATCH_UP), now
-        force = np.zeros(3)
-        if self.mode == 'position' and self.target is not None:
-            # What a real slave's bridge does: the master's motion goes through the passivity
-            # controller, and the servo tracks the passive command instead of the target.
-            command = self.port.step(self.target.tolist(), self.arm.contact_force().tolist(),
-                                     elapsed)
-            force = self.arm.advance(elapsed, target=np.array(command))
-        elif self.mode == 'rate':
-            linear = angular = np.zeros(3)
-            if self.rate is not None and now - self.rate[2] <= self.timeout:
-                linear, angular, _ = self.rate
-            force = self.arm.advance(elapsed, velocity=linear)
-            self.orientation = integrate_quaternion(self.orientation, angular, elapsed)
+        force = self.servo.advance(elapsed, now)
         sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+        self.pose_pub.publish(self._pose_cdr.encode(
+            sec, nanosec, self.servo.arm.position.tolist() + list(self.servo.orientation)))
         self.wrench_pub.publish(self._wrench_cdr.encode(
-            sec, nanosec, self.map.reflect(force).tolist() + [0.0, 0.0, 0.0]))
-        port = self.port
-        self.energy_pub.publish(self._energy_cdr.encode(
-            sec, nanosec, (port.energy_in, port.energy_out, port.dissipated)))
-        if self.arm.position is not None:
-            self.pose_pub.publish(self._pose_cdr.encode(
-                sec, nanosec, self.arm.position.tolist() + list(self.orientation)))
+            sec, nanosec, self.servo.sensor_wrench(force).tolist()))
 
     def _publish_diagnostics(self):
-        """Publish the slave port's energies, drift, and the master-to-slave delay and loss."""
-        port = self.port
-        values = {'passivity': 'on' if port.enabled else 'off',
-                  'slave energy in (J)': f'{port.energy_in:.4f}',
-                  'slave energy out (J)': f'{port.energy_out:.4f}',
-                  'slave energy dissipated (J)': f'{port.dissipated:.4f}',
-                  'slave energy observed (J)': f'{port.observed:.4f}',
-                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
-        link = self.pose_link.summary()
-        if link is not None:
-            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
-                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
-            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
+        """Publish whether the arm follows or holds, its contact force and refused commands."""
+        servo = self.servo
+        values = {'command': 'following' if servo.fresh(time.monotonic()) else 'holding',
+                  'contact force (N)': f'{float(np.linalg.norm(servo.arm.contact_force())):.3f}',
+                  'refused commands': str(self.refused)}
         array = DiagnosticArray(status=[DiagnosticStatus(
-            name=f'{self.get_fully_qualified_name()}: simulated slave', level=DiagnosticStatus.OK,
-            message=self.mode, values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+            name=f'{self.get_fully_qualified_name()}: simulated arm', level=DiagnosticStatus.OK,
+            message=servo.mode, values=[KeyValue(key=k, value=v) for k, v in values.items()])])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
 
 
 def main(args=None):
-    """Run the slave until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    """Run the arm until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
     return run_node(SlaveSimNode, 'kraft_master_slave_sim', __doc__.strip().splitlines()[0],
                     PARAMETERS, args)
 

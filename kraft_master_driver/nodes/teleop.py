@@ -8,24 +8,43 @@ Master side, the driver's names: it takes `pose` and `master_energy`, publishes 
 `servo_cv` (twist mode) and takes `measured_cp` and `measured_cf`. `clutch` (or a `joy`
 button) holds the arm and frees the master; the services `enable` and `tare` start it and zero
 the F/T bias. The logic is core.teleoperation.Teleoperation; this node only moves messages.
+
+The four streaming inputs (pose, master_energy, measured_cp, measured_cf) are taken raw by a
+thread of their own that waits on them alone and handles each message as it comes, and
+servo_cp, servo_cv and wrench go out as CDR bytes (link/cdr.py): through rclpy's typed
+messages and executor the bridge kept up with about one pose in 15 at 1 kHz
+(benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
 """
+from contextlib import ExitStack
 import math
 import sys
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.core.passivity import LinkMonitor
 from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
+from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
+from kraft_master_driver.nodes.ros_helpers import (
+    GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
 MODES = ('pose', 'twist')
 _DEFAULT = Settings()
+POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
+VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
+# The longest the input thread waits for a message before it checks whether to stop (s).
+INPUT_WAIT_S = 0.02
 
 
 def _spec(name, description, **bounds):
@@ -47,6 +66,8 @@ PARAMETERS = {
     'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
                            "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
                            'w.'),
+    'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
+                                  'rotation of master_frame in arm_frame (needs tf2_ros).'),
     'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
                              'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
     'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
@@ -102,14 +123,11 @@ PARAMETERS = {
                        'by master_energy.'),
     'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
                         low=0.0, high=1000.0),
+    'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
+                            'files); false: wait for the enable service.'),
     'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
                           low=-1, high=127),
 }
-
-
-def _pose_values(msg):
-    p, q = msg.pose.position, msg.pose.orientation
-    return msg.header.frame_id, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
 
 
 class TeleopNode(Node):
@@ -127,38 +145,135 @@ class TeleopNode(Node):
             raise ParameterError(f'parameter {error}') from None
         self.mode = config['mode']
         self.clutch_button = config['clutch_button']
+        self.enable_at_start = config['enable_at_start']
+        self.pose_link = LinkMonitor()  # the master's pose: delay and loss on the way here
+        self._tf = self._tf_buffer() if config['base_rotation_from_tf'] else None
         self._clutch_inputs = {'clutch': False, 'joy': False}
         self._published_state = None
+        # The bridge and the publishers are used by the input thread and the executor alike.
+        self._lock = threading.Lock()
+        settings = self.bridge.settings
+        self._servo_cdr = cdr.StampedDoublesEncoder(settings.arm_frame,
+                                                    7 if self.mode == 'pose' else 6)
+        self._wrench_cdr = cdr.StampedDoublesEncoder(settings.master_frame, 6)
+        self._energy_cdr = cdr.StampedDoublesEncoder(settings.master_frame, 3)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # Best effort subscriptions take reliable and best-effort publishers alike.
         inputs = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.servo_pub = (self.create_publisher(PoseStamped, 'servo_cp', reliable)
+        # No QoS event handlers: each is work for every wake-up of the executor (with them,
+        # its wait-set bookkeeping alone took about 0.3 of a core here).
+        quiet = {'event_callbacks': PublisherEventCallbacks(use_default_callbacks=False)}
+        self.servo_pub = (self.create_publisher(PoseStamped, 'servo_cp', reliable, **quiet)
                           if self.mode == 'pose'
-                          else self.create_publisher(TwistStamped, 'servo_cv', reliable))
-        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', reliable)
-        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', reliable)
+                          else self.create_publisher(TwistStamped, 'servo_cv', reliable, **quiet))
+        self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', reliable, **quiet)
+        self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', reliable, **quiet)
         self.state_pub = self.create_publisher(String, 'operating_state', QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
-        self.create_subscription(PoseStamped, 'pose', self._on_pose, inputs)
-        self.create_subscription(Vector3Stamped, 'master_energy',
-                                 lambda msg: self.bridge.master_energy(msg.vector.x), inputs)
-        self.create_subscription(PoseStamped, 'measured_cp', self._on_measured_cp, inputs)
-        self.create_subscription(WrenchStamped, 'measured_cf', self._on_measured_cf, inputs)
-        self.create_subscription(Bool, 'clutch', self._on_clutch, reliable)
+            durability=DurabilityPolicy.TRANSIENT_LOCAL), **quiet)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable, **quiet)
+        quiet_input = SubscriptionEventCallbacks(use_default_callbacks=False)
+        self._inputs = tuple(
+            self.create_subscription(
+                msg_type, topic, handler, inputs, raw=True, callback_group=TakenByLoopThread(),
+                event_callbacks=quiet_input)
+            for msg_type, topic, handler in (
+                (PoseStamped, 'pose', self._on_pose),
+                (Vector3Stamped, 'master_energy', self._on_master_energy),
+                (PoseStamped, 'measured_cp', self._on_measured_cp),
+                (WrenchStamped, 'measured_cf', self._on_measured_cf)))
+        self.create_subscription(Bool, 'clutch', self._on_clutch, reliable,
+                                 event_callbacks=quiet_input)
         if self.clutch_button >= 0:
-            self.create_subscription(Joy, 'joy', self._on_joy, reliable)
+            self.create_subscription(Joy, 'joy', self._on_joy, reliable,
+                                     event_callbacks=quiet_input)
         self.create_service(SetBool, 'enable', self._on_enable)
         self.create_service(Trigger, 'tare', self._on_tare)
-        self.create_timer(1.0 / config['rate_hz'], self._tick)
-        self.create_timer(1.0, self._publish_diagnostics)
+        self._tick_period = 1.0 / config['rate_hz']
+        steady_timer(self, 1.0, self._publish_diagnostics)
         self._publish_state()
+        self._running = True
+        self._input_thread = threading.Thread(target=self._take_inputs, name='teleop_inputs')
+        self._input_thread.start()
         self.get_logger().info(
             f'bridge in {self.mode} mode, scale {config["scale"]:g}, orientation '
-            f'{config["orientation"]}; DISABLED until the enable service is called')
+            f'{config["orientation"]}; DISABLED until the enable service is called'
+            + (' (enabled at start once it can be)' if self.enable_at_start else ''))
+
+    def _tf_buffer(self):
+        """Return (tf2_ros, a Buffer this node's TransformListener fills)."""
+        try:
+            import tf2_ros
+        except ImportError:
+            raise ParameterError('base_rotation_from_tf needs tf2_ros, which is not installed '
+                                 '(it is not on PyPI): install ROS 2 tf2_ros or give '
+                                 'base_rotation') from None
+        buffer = tf2_ros.Buffer()
+        self._tf_listener = tf2_ros.TransformListener(buffer, self)
+        return tf2_ros, buffer
+
+    def destroy_node(self):
+        """Stop the input thread, then the node."""
+        self._running = False
+        self._input_thread.join()
+        super().destroy_node()
 
     # -- inputs ----------------------------------------------------------------------
+
+    def _take_inputs(self):
+        """
+        Wait on the streaming inputs alone; handle each message as it comes, until stopped.
+
+        The ticks (_tick, at rate_hz on the steady clock) run here too, between messages: as an
+        executor timer each woke the executor, whose wait-set bookkeeping took about 2 ms of a
+        loaded machine's CPU per wake-up (benchmarks/bridge.py --profile).
+        """
+        try:
+            with ExitStack() as in_use:
+                in_use.enter_context(self.context.handle)
+                for subscription in self._inputs:
+                    in_use.enter_context(subscription.handle)
+                wait_set = _rclpy.WaitSet(len(self._inputs), 0, 0, 0, 0, 0, self.context.handle)
+                next_tick = time.monotonic() + self._tick_period
+                while self._running:
+                    wait_set.clear_entities()
+                    for subscription in self._inputs:
+                        wait_set.add_subscription(subscription.handle)
+                    wait_s = min(next_tick - time.monotonic(), INPUT_WAIT_S)
+                    wait_set.wait(max(int(wait_s * 1e9), 0))
+                    self._take_one_each()
+                    now = time.monotonic()
+                    if now >= next_tick:
+                        self._tick()
+                        # Late (a descheduled thread): the next a period from now, no burst.
+                        next_tick = max(next_tick + self._tick_period, now)
+        except Exception:  # noqa: B902 - waiting and taking fail once a signal ends the context
+            if self._running and self.context.ok():
+                raise
+
+    def _take_one_each(self):
+        """
+        Hand the oldest message of each input (CDR bytes) to its handler; return whether any.
+
+        One of each in turn: were one input drained first, a pose stream the bridge cannot
+        keep up with would leave measured_cp untaken until it went stale (a FAULT, seen under
+        load).
+        """
+        taken_any = False
+        for subscription in self._inputs:
+            taken = subscription.handle.take_message(subscription.msg_type, True)
+            if taken is None:
+                continue
+            taken_any = True
+            with self._lock:
+                try:
+                    # When DDS received it (system clock, ns), not when this thread took it.
+                    subscription.callback(
+                        taken[0], taken[1]['received_timestamp'] or time.time_ns())
+                except ValueError as error:
+                    self.get_logger().error(f'{subscription.topic_name} ignored: {error}',
+                                            throttle_duration_sec=1.0)
+        return taken_any
 
     def _refused(self, refusal):
         """Log a refused input in one line, then publish the state it left."""
@@ -166,25 +281,32 @@ class TeleopNode(Node):
             self.get_logger().error(refusal, throttle_duration_sec=1.0)
         self._publish_state()
 
-    def _on_pose(self, msg):
-        self._refused(self.bridge.master_pose(*_pose_values(msg), time.monotonic()))
+    def _on_pose(self, data, received_ns):
+        sec, nanosec, frame_id, values = POSE_STAMPED.decode(data)
+        self.pose_link.add(sec * 1_000_000_000 + nanosec, received_ns)
+        self._refused(self.bridge.master_pose(frame_id, values[:3], values[3:],
+                                              time.monotonic()))
         if self.bridge.following:
             self._publish_command()
 
-    def _on_measured_cp(self, msg):
-        self._refused(self.bridge.arm_pose(*_pose_values(msg), time.monotonic()))
+    def _on_master_energy(self, data, _received_ns):
+        self.bridge.master_energy(VECTOR3_STAMPED.decode(data)[3][0])
 
-    def _on_measured_cf(self, msg):
-        f, m = msg.wrench.force, msg.wrench.torque
+    def _on_measured_cp(self, data, _received_ns):
+        _, _, frame_id, values = POSE_STAMPED.decode(data)
+        self._refused(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
+
+    def _on_measured_cf(self, data, _received_ns):
+        _, _, frame_id, values = cdr.decode_wrench_stamped(data)
         now = time.monotonic()
-        self._refused(self.bridge.ft_reading(msg.header.frame_id,
-                                             (f.x, f.y, f.z, m.x, m.y, m.z), now))
+        self._refused(self.bridge.ft_reading(frame_id, values, now))
         self._publish_wrench(self.bridge.master_wrench(now))
 
     def _set_clutch(self, source, pressed):
-        self._clutch_inputs[source] = pressed
-        self.bridge.set_clutch(any(self._clutch_inputs.values()))
-        self._publish_state()
+        with self._lock:
+            self._clutch_inputs[source] = pressed
+            self.bridge.set_clutch(any(self._clutch_inputs.values()))
+            self._publish_state()
 
     def _on_clutch(self, msg):
         self._set_clutch('clutch', bool(msg.data))
@@ -197,79 +319,97 @@ class TeleopNode(Node):
             return
         self._set_clutch('joy', msg.buttons[self.clutch_button] == 1)
 
+    def _enable(self, now):
+        """Enable the bridge, with base_rotation from TF first if asked; return why not."""
+        if self._tf is not None and self.bridge.state not in ('ENABLED', 'CLUTCHED'):
+            tf2_ros, buffer = self._tf
+            settings = self.bridge.settings
+            try:
+                rotation = buffer.lookup_transform(
+                    settings.arm_frame, settings.master_frame, Time()).transform.rotation
+            except tf2_ros.TransformException as error:
+                return (f'no TF from {settings.master_frame} to {settings.arm_frame} '
+                        f'({error}): not enabled')
+            refusal = self.bridge.set_base_rotation(
+                (rotation.x, rotation.y, rotation.z, rotation.w))
+            if refusal is not None:
+                return f'TF {refusal}: not enabled'
+        return self.bridge.enable(now)
+
     def _on_enable(self, request, response):
-        if request.data:
-            refusal = self.bridge.enable(time.monotonic())
-            response.success = refusal is None
-            response.message = refusal or self.bridge.describe()
-        else:
-            self.bridge.disable()
-            response.success, response.message = True, self.bridge.describe()
+        with self._lock:
+            if request.data:
+                refusal = self._enable(time.monotonic())
+                response.success = refusal is None
+                response.message = refusal or self.bridge.describe()
+            else:
+                self.bridge.disable()
+                response.success, response.message = True, self.bridge.describe()
+            self._publish_state()
         self.get_logger().info(f'enable {request.data}: {response.message}')
-        self._publish_state()
         return response
 
     def _on_tare(self, _request, response):
-        refusal = self.bridge.tare(time.monotonic())
+        with self._lock:
+            refusal = self.bridge.tare(time.monotonic())
         response.success = refusal is None
         response.message = refusal or 'F/T bias taken'
         return response
 
     # -- outputs ---------------------------------------------------------------------
 
-    def _stamp(self, msg, frame_id):
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = frame_id
-        return msg
+    def _now(self):
+        """Return this node's clock now as (sec, nanosec), for a header's stamp."""
+        return divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
 
     def _publish_command(self):
         """Publish the arm's command: the target or held pose, or the twist toward it."""
-        settings = self.bridge.settings
         if self.mode == 'pose':
             pose = self.bridge.arm_command()
             if pose is None:
                 return
-            msg = self._stamp(PoseStamped(), settings.arm_frame)
-            p, q = msg.pose.position, msg.pose.orientation
-            p.x, p.y, p.z = (float(v) for v in pose.position)
-            q.x, q.y, q.z, q.w = pose.quaternion
+            values = (*pose.position, *pose.quaternion)
         else:
             if self.bridge.state == 'DISABLED':
                 return
-            msg = self._stamp(TwistStamped(), settings.arm_frame)
-            v, w = msg.twist.linear, msg.twist.angular
-            v.x, v.y, v.z, w.x, w.y, w.z = (float(x) for x in self.bridge.arm_twist())
-        self.servo_pub.publish(msg)
+            values = self.bridge.arm_twist()
+        self.servo_pub.publish(self._servo_cdr.encode(*self._now(), values))
 
     def _publish_wrench(self, wrench):
-        msg = self._stamp(WrenchStamped(), self.bridge.settings.master_frame)
-        f, m = msg.wrench.force, msg.wrench.torque
-        f.x, f.y, f.z, m.x, m.y, m.z = (float(v) for v in wrench)
-        self.wrench_pub.publish(msg)
+        self.wrench_pub.publish(self._wrench_cdr.encode(*self._now(), wrench))
 
     def _publish_state(self):
         text = self.bridge.describe()
         if text != self._published_state:
             self._published_state = text
             self.state_pub.publish(String(data=text))
+            if self.bridge.state == 'FAULT':
+                self.get_logger().error(text)
 
     def _tick(self):
         """Apply the timeouts; while not following, hold the arm and send the master zero."""
-        now = time.monotonic()
-        self.bridge.check(now)
-        self._publish_state()
-        bridge = self.bridge
-        if not bridge.following:
-            self._publish_command()
-            self._publish_wrench(bridge.master_wrench(now))
-        elif not bridge.settings.force_feedback:
-            self._publish_wrench(bridge.master_wrench(now))
-        port = bridge.port
-        msg = self._stamp(Vector3Stamped(), bridge.settings.master_frame)
-        msg.vector.x, msg.vector.y, msg.vector.z = port.energy_in, port.energy_out, port.dissipated
-        self.energy_pub.publish(msg)
+        with self._lock:
+            now = time.monotonic()
+            bridge = self.bridge
+            if self.enable_at_start and self._enable(now) is None:
+                self.enable_at_start = False
+                self.get_logger().info(f'enabled at start: {bridge.describe()}')
+            bridge.check(now)
+            self._publish_state()
+            if not bridge.following:
+                self._publish_command()
+                self._publish_wrench(bridge.master_wrench(now))
+            elif not bridge.settings.force_feedback:
+                self._publish_wrench(bridge.master_wrench(now))
+            port = bridge.port
+            energies = port.energy_in, port.energy_out, port.dissipated
+        self.energy_pub.publish(self._energy_cdr.encode(*self._now(), energies))
 
     def _publish_diagnostics(self):
+        with self._lock:
+            self._publish_status()
+
+    def _publish_status(self):
         bridge, port = self.bridge, self.bridge.port
         level = DiagnosticStatus.ERROR if bridge.state == 'FAULT' else DiagnosticStatus.OK
         values = {'state': bridge.state, 'reason': bridge.reason, 'mode': self.mode,
@@ -279,6 +419,11 @@ class TeleopNode(Node):
                   'slave energy out (J)': f'{port.energy_out:.4f}',
                   'slave energy dissipated (J)': f'{port.dissipated:.4f}',
                   'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+        link = self.pose_link.summary()
+        if link is not None:
+            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
+                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
+            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
         array = DiagnosticArray(status=[DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
             message=bridge.describe(),
@@ -289,6 +434,7 @@ class TeleopNode(Node):
 
 def main(args=None):
     """Run the bridge until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # the input thread gets the GIL when it wakes
     return run_node(TeleopNode, 'kraft_master_teleop', __doc__.strip().splitlines()[0],
                     PARAMETERS, args)
 

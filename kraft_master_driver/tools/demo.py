@@ -5,10 +5,12 @@ kraft_master_demo: the paper's worked examples, then simulated teleoperation, li
 
 The driver runs against the simulated hand controller (its own process, on a real
 pseudo-terminal), whose simulated operator takes hold when the driver starts and pushes the
-wrist 80 mm down and back, 2 s each way; the simulated slave arm follows the master's pose
-about the middle of its workspace, meets a stiff wall 40 mm down, and its contact wrench is
-reflected to the master as joint torques. A few refreshed lines show what happens; the
-processes' messages go to a log file and are shown above them.
+wrist 80 mm down and back, 2 s each way. The teleoperation bridge (kraft_master_teleop) maps
+the master's pose to a simulated arm (ARM below) and reflects the arm's wrist force reading;
+the demo enables it with the master's wrist near its home, the top of the stroke, so the arm
+travels the stroke from where it starts, meets a stiff wall 40 mm down, and its contact
+wrench is reflected to the master as joint torques. A few refreshed lines show what happens;
+the processes' messages go to a log file and are shown above them.
 """
 import argparse
 import math
@@ -24,29 +26,59 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.nodes.arm_sim import PARAMETERS as MUJOCO_ARM_PARAMETERS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
-from kraft_master_driver.nodes.slave_sim import PARAMETERS as SLAVE_PARAMETERS
+from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
+from kraft_master_driver.simulation.model import Workspace
+import numpy as np
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import SetBool
 
 SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 2488, 1745))
 SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
              '--operator', 'push']
 DRIVER = [sys.executable, '-m', 'kraft_master_driver.nodes.driver', '--ros-args',
           '-p', 'force_enabled_at_start:=true']
-SLAVE = [sys.executable, '-m', 'kraft_master_driver.nodes.slave_sim']
+# The simulated arm behind the bridge: any node that takes servo_cp and publishes measured_cp
+# and measured_cf (frames base_link and ft_sensor, the bridge's defaults) can stand here.
+ARM = [sys.executable, '-m', 'kraft_master_driver.nodes.slave_sim']
+WALL_Z = ARM_PARAMETERS['wall.point'][0][2]  # m, the arm's wall below its start at 0
+# `--arm mujoco`: the Franka Panda in MuJoCo (doc/arm-sim.md), its fingertips 37 mm above the
+# table top at the start.
+MUJOCO_ARM = [sys.executable, '-m', 'kraft_master_driver.nodes.arm_sim']
+TABLE_Z = MUJOCO_ARM_PARAMETERS['table.height'].default  # m, the table top
+# The bridge: scale 1, the arm's force reflected one to one (as the earlier simulated slave
+# did itself), its slave port's energy at the arm's 500 Hz; the point-mass arm's tool keeps
+# its orientation. Its timeouts allow a loaded machine's stalls (a stale pose would register
+# the master anew, shifting the arm's stroke; at 0.5 s a stale measured_cp faulted the bridge
+# with the machine's load average at 27 on 2 cores), and its tracking limit the wall: the
+# stroke commands the arm up to 40 mm past it.
+BRIDGE = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args',
+          '-p', 'rate_hz:=500.0', '-p', 'orientation:=fixed', '-p', 'master_timeout:=2.0',
+          '-p', 'arm_timeout:=2.0', '-p', 'ft_timeout:=2.0', '-p', 'max_tracking_error:=0.2']
+# The bridge for the Panda: the hand's weight beyond its sensor taken out of the reading (the
+# arm node logs both figures), the target kept in a box in front of the arm, within its reach
+# hand down, that reaches 5 cm into the table. Its stroke down from the start commands the hand
+# 43 mm past the top, pressing the table with the controller's 1000 N/m.
+MUJOCO_BRIDGE = [*BRIDGE, '-p', 'tool_mass:=1.0045', '-p', 'tool_com:=[0.0, -0.0005, 0.0431]',
+                 '-p', 'workspace_min:=[0.2, -0.3, 0.35]',
+                 '-p', 'workspace_max:=[0.5, 0.3, 0.55]']
 DRIVER_NAME = 'kraft_master_node'
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
-WALL_Z = SLAVE_PARAMETERS['wall.point'][0][2]
-START_TIMEOUT = 60.0  # s for the driver and the slave to come up
+HOME = kinematics.forward(Workspace().home(), 'right')[:3, 3]  # the push's top
+ENGAGE_DISTANCE = 0.005  # m from HOME within which the demo enables the bridge
+START_TIMEOUT = 60.0  # s for the driver, the bridge and the arm to come up and be enabled
 REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
+ENGAGE_REFRESH = 0.02  # s between looks at the master's pose until the bridge is enabled
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 EMULATOR = [sys.executable, '-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
             '-p', 'to_slave.topics:=[pose, master_energy]',
-            '-p', 'to_master.topics:=[wrench, slave_energy, slave_pose]']
+            '-p', 'to_master.topics:=[wrench, slave_energy]']
 
 
 def _rows(matrix, scales):
@@ -72,27 +104,51 @@ def print_examples(out=sys.stdout):
 
 class Readout:
     """
-    A client node that takes the newest message of each topic when asked, never spinning.
+    Client nodes that take the newest message of each topic when asked, never spinning.
 
     Depth-1 subscriptions hold only the newest message, and nothing in this process wakes for
-    the 1 kHz topics: a refresh takes what is there.
+    the 1 kHz topics: a refresh takes what is there. One node listens on the driver's domain,
+    one on the bridge's (the same unless the link emulator is between them), where it also
+    calls the bridge's `enable`.
     """
 
-    def __init__(self):
-        """Subscribe to the driver's state, the slave's, and the diagnostics."""
+    def __init__(self, bridge_domain, mujoco=False):
+        """
+        Subscribe to the driver's state and diagnostics, the arm's pose, the bridge's state.
+
+        `mujoco`: the arm is the MuJoCo Panda, whose diagnostics (on the bridge's domain) tell
+        the table's force on its hand.
+        """
+        self.mujoco = mujoco
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C is ours
         self.node = rclpy.create_node('kraft_master_demo')
+        self.arm_context = rclpy.Context()
+        rclpy.init(context=self.arm_context, domain_id=bridge_domain,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.arm_node = rclpy.create_node('kraft_master_demo_arm', context=self.arm_context)
+        self.enabler = rclpy.create_node('kraft_master_demo_enable', context=self.arm_context)
+        self.enable_client = self.enabler.create_client(SetBool, 'enable')
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.arm_context)
+        self.executor.add_node(self.enabler)
         self.latest = {}
         self.driver_status = {}
+        self.arm_status = {}
+        state_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._subscriptions = [
-            self.node.create_subscription(
+            node.create_subscription(
                 msg_type, topic, lambda _msg: None,
-                QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT),
+                qos or QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT),
                 event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
-            for msg_type, topic, depth in (
-                (JointState, 'joint_states', 1), (PoseStamped, 'pose', 1),
-                (WrenchStamped, 'wrench', 1), (PoseStamped, 'slave_pose', 1),
-                (DiagnosticArray, '/diagnostics', 10))]
+            for node, msg_type, topic, depth, qos in (
+                (self.node, JointState, 'joint_states', 1, None),
+                (self.node, PoseStamped, 'pose', 1, None),
+                (self.node, WrenchStamped, 'wrench', 1, None),
+                (self.node, DiagnosticArray, '/diagnostics', 10, None),
+                (self.arm_node, PoseStamped, 'measured_cp', 1, None),
+                (self.arm_node, String, 'operating_state', 1, state_qos),
+                *([(self.arm_node, DiagnosticArray, '/diagnostics', 10, None)] if mujoco
+                  else []))]
 
     def take(self):
         """Take the newest message of each topic, and the driver's newest status."""
@@ -102,45 +158,79 @@ class Readout:
                         subscription.msg_type, False)) is not None:
                     self.latest[subscription.topic_name] = taken[0]
                     if subscription.topic_name == '/diagnostics':
-                        self._keep_driver_status(taken[0])
+                        self._keep_statuses(taken[0])
 
-    def _keep_driver_status(self, array):
+    def _keep_statuses(self, array):
         for status in array.status:
-            if status.name.partition(':')[0].rpartition('/')[2] == DRIVER_NAME:
+            name, _, what = status.name.partition(': ')
+            if name.rpartition('/')[2] == DRIVER_NAME:
                 self.driver_status = {kv.key: kv.value for kv in status.values}
+            elif what == 'simulated arm':
+                self.arm_status = {kv.key: kv.value for kv in status.values}
+
+    def bridge_state(self):
+        """Return the bridge's operating state ('ENABLED', ...), or None before it came."""
+        state = self.latest.get('/operating_state')
+        return state.data.partition(':')[0] if state is not None else None
+
+    def engage(self):
+        """Call enable once the master's wrist is near HOME; return whether the call succeeded."""
+        pose = self.latest.get('/pose')
+        if pose is None or not self.enable_client.service_is_ready():
+            return False
+        p = pose.pose.position
+        if np.linalg.norm(np.array([p.x, p.y, p.z]) - HOME) > ENGAGE_DISTANCE:
+            return False
+        future = self.enable_client.call_async(SetBool.Request(data=True))
+        self.executor.spin_until_future_complete(future, timeout_sec=10.0)
+        # Refused while an input is not fresh yet (the bridge logs why): tried again.
+        response = future.result()
+        return response is not None and response.success
 
     def running(self):
-        """Return True once the driver's state and the slave's pose have come."""
-        return '/joint_states' in self.latest and '/slave_pose' in self.latest
+        """Return True once the driver's state and the arm's pose have come."""
+        return '/joint_states' in self.latest and '/measured_cp' in self.latest
 
     def lines(self, seconds):
         """Return the readout, a few lines, at `seconds` of teleoperation."""
         latest, status = self.latest, self.driver_status
         if not self.running():
-            return ['waiting for the driver and the slave ...']
+            return ['waiting for the driver, the bridge and the arm ...']
         state = latest['/joint_states']
         p = latest['/pose'].pose.position if '/pose' in latest else None
         wrench = latest['/wrench'].wrench.force if '/wrench' in latest else None
-        slave = latest['/slave_pose'].pose.position
+        arm = latest['/measured_cp'].pose.position
         link_errors = sum(int(status.get(f'link {k}', 0)) for k in (
             'timeouts', 'bad_crc', 'garbage_bytes', 'truncated', 'link_faults'))
+        if self.mujoco:
+            arm_lines = [
+                f'Panda (mm)        {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} {1e3 * arm.z:7.1f}'
+                f'   (table top at z = {1e3 * TABLE_Z:.1f})',
+                'table on hand (N)   ' + ' '.join(
+                    f'{float(v):7.2f}' for v in self.arm_status['table contact force (N)']
+                    .split(', ')) if self.arm_status else 'table on hand (N) -']
+        else:
+            arm_lines = [f'arm (mm)          {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} '
+                         f'{1e3 * arm.z:7.1f}   (wall at z = {1e3 * WALL_Z:.1f})']
         return [
             f'{seconds:5.1f} s | loop {status.get("loop rate (Hz)", "-")} Hz, period p99 '
             f'{status.get("period p99 (ms)", "-")} ms | link errors {link_errors} | '
-            f'force {status.get("force state", "-")}',
+            f'force {status.get("force state", "-")} | bridge {self.bridge_state() or "-"}',
             'joints (deg)    ' + ' '.join(f'{math.degrees(v):8.2f}' for v in state.position),
             'torques (N*m)   ' + ' '.join(f'{v:8.3f}' for v in state.effort),
             'master wrist (mm) ' + (f'{1e3 * p.x:7.1f} {1e3 * p.y:7.1f} {1e3 * p.z:7.1f}'
                                     if p else '-'),
-            f'slave (mm)        {1e3 * slave.x:7.1f} {1e3 * slave.y:7.1f} {1e3 * slave.z:7.1f}'
-            f'   (wall at z = {1e3 * WALL_Z:.1f})',
+            *arm_lines,
             'wrench on master (N) ' + (f'{wrench.x:7.2f} {wrench.y:7.2f} {wrench.z:7.2f}'
                                        if wrench else '-'),
         ]
 
     def close(self):
         """Leave ROS."""
-        self.node.destroy_node()
+        self.executor.shutdown()
+        for node in (self.enabler, self.arm_node, self.node):
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.arm_context)
         rclpy.try_shutdown()
 
 
@@ -221,13 +311,16 @@ def _stop_on_signal(*_):
     raise KeyboardInterrupt
 
 
-def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
+def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='point-mass'):
     """
     Run the processes for `duration` s once all are up (or until Ctrl-C), showing them.
 
-    With delay_ms > 0 the slave runs on the next DDS domain and the link emulator relays
-    between them with half of delay_ms each way; passivity turns it on at both ends.
+    With delay_ms > 0 the bridge and the arm run on the next DDS domain and the link emulator
+    relays between it and the driver's with half of delay_ms each way; passivity turns it on
+    at both ends (the driver's master port, the bridge's slave port). `arm`: 'point-mass'
+    (kraft_master_slave_sim) or 'mujoco' (kraft_master_arm_sim, with the bridge it needs).
     """
+    mujoco = arm == 'mujoco'
     log = ProcessLog()
     print(f"The processes' messages go to {log.path}, and are shown here.", file=out,
           flush=True)
@@ -248,20 +341,23 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
         passive = ['-p', f'passivity:={str(passivity).lower()}']
         # The wrench reaches the driver one way's delay after its stamp: admit that much more.
         wrench_age = ['-p', f'max_wrench_age:={MAX_WRENCH_AGE_S + delay_ms / 2e3}']
-        slave_child = child
+        arm_child = child
+        bridge_domain = int(os.environ.get('ROS_DOMAIN_ID', '0'))
         if delay_ms > 0.0:
-            slave_domain = (int(os.environ.get('ROS_DOMAIN_ID', '0')) + 1) % 233
-            slave_child = dict(child, env=dict(child['env'], ROS_DOMAIN_ID=str(slave_domain)))
+            bridge_domain = (bridge_domain + 1) % 233
+            arm_child = dict(child, env=dict(child['env'], ROS_DOMAIN_ID=str(bridge_domain)))
             one_way = delay_ms / 2e3
             processes.append(subprocess.Popen(
-                [*EMULATOR, '-p', f'slave_domain_id:={slave_domain}',
+                [*EMULATOR, '-p', f'slave_domain_id:={bridge_domain}',
                  '-p', f'to_slave.delay:={one_way}', '-p', f'to_master.delay:={one_way}'],
                 stdout=log.file, **child))
         processes[:0] = [
             subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age],
                              stdout=log.file, **child),
-            subprocess.Popen([*SLAVE, '--ros-args', *passive], stdout=log.file, **slave_child)]
-        readout = Readout()
+            subprocess.Popen([*(MUJOCO_BRIDGE if mujoco else BRIDGE), *passive],
+                             stdout=log.file, **arm_child),
+            subprocess.Popen(MUJOCO_ARM if mujoco else ARM, stdout=log.file, **arm_child)]
+        readout = Readout(bridge_domain, mujoco)
         return _show(readout, processes, duration, log, screen)
     except KeyboardInterrupt:
         return 0
@@ -281,21 +377,24 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False):
 
 
 def _show(readout, processes, duration, log, screen):
-    """Refresh the readout until `duration` s after all came up; return the exit code."""
-    started = time.monotonic()
+    """Refresh the readout until `duration` s after the bridge was enabled; return the code."""
+    started = shown = time.monotonic()
     up = None
     while up is None or time.monotonic() - up < duration:
-        time.sleep(REFRESH[screen.interactive])
+        time.sleep(REFRESH[screen.interactive] if up is not None else ENGAGE_REFRESH)
         readout.take()
-        now = time.monotonic()
-        if up is None and readout.running():
-            up = now
+        if up is None and readout.running() and readout.engage():
+            up = time.monotonic()
             cpu = [cpu_seconds(p.pid) for p in processes], time.process_time()
+        now = time.monotonic()
+        if up is None and now - shown < REFRESH[screen.interactive]:
+            continue  # looking for the moment to enable: the readout at its own pace
+        shown = now
         if any(process.poll() is not None for process in processes):
             screen.show(log.new_lines(), ['a demo process ended early; see its messages'])
             return 1
         if up is None and now - started > START_TIMEOUT:
-            screen.show(log.new_lines(), [f'the driver and the slave were not up within '
+            screen.show(log.new_lines(), [f'the bridge was not enabled within '
                                           f'{START_TIMEOUT:g} s'])
             return 1
         screen.show(log.new_lines(), readout.lines(0.0 if up is None else now - up))
@@ -304,8 +403,9 @@ def _show(readout, processes, duration, log, screen):
               for p, before in zip(processes, cpu[0])]
     readout_share = 100.0 * (time.process_time() - cpu[1]) / elapsed
     screen.keep()
-    screen.show([f'CPU over {elapsed:.0f} s, % of a core: driver {shares[0]:.0f}, slave '
-                 f'{shares[1]:.0f}, simulator {shares[2]:.0f}, readout {readout_share:.0f}'], [])
+    screen.show([f'CPU over {elapsed:.0f} s, % of a core: driver {shares[0]:.0f}, bridge '
+                 f'{shares[1]:.0f}, arm {shares[2]:.0f}, simulator {shares[3]:.0f}, readout '
+                 f'{readout_share:.0f}'], [])
     return 0
 
 
@@ -313,17 +413,23 @@ def main(argv=None):
     """Print the examples and run the teleoperation demo."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--duration', type=float, default=20.0,
-                        help='seconds of teleoperation once driver and slave are up '
+                        help='seconds of teleoperation once the bridge is enabled '
                              '(default 20); Ctrl-C ends it earlier')
     parser.add_argument('--delay-ms', type=float, default=0.0,
-                        help='round trip between master and slave through the link emulator')
+                        help='round trip between the driver and the bridge through the link '
+                             'emulator')
     parser.add_argument('--passivity', choices=('on', 'off'), default='off',
                         help='time-domain passivity at both ends (default off)')
+    parser.add_argument('--arm', choices=('point-mass', 'mujoco'), default='point-mass',
+                        help="the simulated arm: 'point-mass' (default) or 'mujoco', the "
+                             'Franka Panda on its table')
     args = parser.parse_args(argv)
     print_examples()
-    print(f'Simulated teleoperation for {args.duration:g} s (Ctrl-C to stop) ...', flush=True)
+    panda = ' on the MuJoCo Franka Panda' if args.arm == 'mujoco' else ''
+    print(f'Simulated teleoperation{panda} for {args.duration:g} s (Ctrl-C to stop) ...',
+          flush=True)
     return teleoperate(args.duration, delay_ms=args.delay_ms,
-                       passivity=args.passivity == 'on')
+                       passivity=args.passivity == 'on', arm=args.arm)
 
 
 if __name__ == '__main__':

@@ -3,8 +3,8 @@
 """
 Record teleoperation topics on one host (its namespace), print them as JSON when stopped.
 
-Run inside a host of netns.TwoHosts: python remote_recorder.py TOPIC... (of slave_pose,
-wrench, master_energy, slave_energy, diagnostics). Prints 'ready' once subscribed and
+Run inside a host of netns.TwoHosts: python remote_recorder.py TOPIC... (of measured_cp,
+servo_cp, wrench, master_energy, slave_energy, diagnostics). Prints 'ready' once subscribed and
 'first TOPIC' when a topic's first message comes; on SIGINT or SIGTERM prints one JSON line,
 {topic: [[monotonic receipt time, values...], ...]} (diagnostics: [time, {key: value}]).
 """
@@ -29,7 +29,8 @@ def _diagnostics(msg):
 
 
 TOPICS = {
-    'slave_pose': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
+    'measured_cp': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
+    'servo_cp': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
     'wrench': (WrenchStamped, lambda msg: _xyz(msg.wrench.force)),
     'master_energy': (Vector3Stamped, lambda msg: _xyz(msg.vector)),
     'slave_energy': (Vector3Stamped, lambda msg: _xyz(msg.vector)),

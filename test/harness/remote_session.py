@@ -7,12 +7,13 @@ Two hosts (netns.TwoHosts: two network namespaces joined by a veth pair): on the
 the installed driver at 1 kHz on one DDS domain, driving the simulated hand controller that runs
 in this process ('hold' operator) over TCP inside the master host (not a pty: with a busy loop
 per core, the pty's kernel worker thread held the driver's poll() for up to 5 s in about a
-third of the sessions), and kraft_master_link_emulator relaying to the slave's domain with half
-the round trip each way and the given loss (with neither delay nor loss, no emulator: driver
-and slave share a domain); on the
-slave host the installed slave simulator. A recorder on each host (remote_recorder.py). The
-operator's hand pulls the master PAST m through the slave's wall (the slave follows one to one)
-over RAMP s, holds HOLD s, goes back over RAMP s and rests SETTLE s. run_row() returns the
+third of the sessions), and kraft_master_link_emulator relaying to the arm's domain with half
+the round trip each way and the given loss (with neither delay nor loss, no emulator: all
+share a domain); on the arm's host the installed bridge (kraft_master_teleop, enabled at start,
+so with the master at home) and the simulated arm (kraft_master_slave_sim) behind it. A
+recorder on each host (remote_recorder.py). The operator's hand pulls the master PAST m
+through the arm's wall (the arm follows one to one) over RAMP s, holds HOLD s, goes back over
+RAMP s and rests SETTLE s. run_row() returns the
 figures: master peak-to-peak along the wall normal over the last WINDOW s of the hold, the
 slave's largest penetration, the energy the channel generated (from both ports' observers), the
 steady force at the slave and the force the operator feels (J^T F read back from the torques
@@ -46,10 +47,21 @@ NORMAL = np.array([0.0, 0.0, 1.0])
 WALL_BELOW = 0.03  # m from the master's home down to the wall
 PAST = 0.025  # m the operator's hand aims past the wall
 RAMP, HOLD, WINDOW, SETTLE = 1.0, 5.0, 2.0, 2.0  # s
-# The benchmark's slave: a 1 kg arm pushing with up to 100 N (see the README).
+# The benchmark's arm: 1 kg pushing with up to 100 N (see the README).
 SLAVE = {'mass': 1.0, 'max_acceleration': 100.0}
-# Pose and master_energy at 500 Hz: half the messages for the relay (one Python process).
-PUBLISH_DECIMATION = 2
+# The bridge: one to one, the tool's orientation kept (a point mass has none to follow), forces
+# up to its largest limit reflected (the earlier slave reflected them unlimited), timeouts that
+# a loaded machine's stalls do not trip (a stale pose registers the master anew), and the slave
+# port's energy at the arm's 500 Hz, as the earlier slave sent it; a tracking limit the wall
+# does not trip (it holds the arm short of its command, PAST m and more with passivity off).
+BRIDGE = {'orientation': 'fixed', 'max_force': 200.0, 'master_timeout': 2.0,
+          'arm_timeout': 2.0, 'ft_timeout': 2.0, 'rate_hz': 500.0, 'enable_at_start': 'true',
+          'max_tracking_error': 1.0}
+# Pose and master_energy at 200 Hz. At 500 Hz the relay, bridge, arm and recorders (all Python)
+# kept both cores busy on an idle machine: the pose reached the bridge 93 ms late at median
+# where the emulator adds 50, 30 % of it missing, the arm's contact force 0.35 to 2 N; at
+# 200 Hz, 53 ms, 5.5 % and 3.3 N (test_remote_teleop.py, two runs each).
+PUBLISH_DECIMATION = 5
 # The driver admits wrenches this much older than the emulated one-way delay.
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 
@@ -137,7 +149,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
 
     sampler = threading.Thread(target=sample, daemon=True)
     master_domain = next_domain_id()
-    # No delay and no loss to emulate: driver and slave talk directly across the veth, on one
+    # No delay and no loss to emulate: driver and bridge talk directly across the veth, on one
     # domain, so that the latencies are the network's and DDS's, not the relay's.
     direct = round_trip_ms == 0 and loss == 0
     slave_domain = master_domain if direct else next_domain_id()
@@ -159,19 +171,23 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
                     ('to_master.topics', "['wrench', 'slave_energy']"),
                     ('to_slave.delay', one_way), ('to_master.delay', one_way),
                     ('to_slave.loss', loss), ('to_master.loss', loss)])
+            start(slave_host, prefix, slave_domain, 'kraft_master_teleop', [
+                ('passivity', on), *BRIDGE.items()])
+            # The arm starts where the master's wrist rests: the bridge registers the two there.
             start(slave_host, prefix, slave_domain, 'kraft_master_slave_sim', [
-                ('centre_at_start', 'false'), ('centre', vector(HOME)),
-                ('offset', vector(HOME)), ('box.stiffness', 0.0),
+                ('start_position', vector(HOME)), ('box.stiffness', 0.0),
                 ('wall.point', vector(wall_point)), ('wall.normal', vector(NORMAL)),
-                ('passivity', on), *((name, float(value)) for name, value in SLAVE.items())])
+                *((name, float(value)) for name, value in SLAVE.items())])
             master = Recorder(master_host, prefix, master_domain,
                               ('master_energy', 'diagnostics'))
             far = Recorder(slave_host, prefix, slave_domain,
-                           ('slave_pose', 'wrench', 'slave_energy', 'diagnostics'))
+                           ('measured_cp', 'servo_cp', 'wrench', 'slave_energy', 'diagnostics'))
             deadline = time.monotonic() + 90.0
-            while not ({'slave_pose', 'slave_energy'} <= far.first
+            # The bridge's first servo_cp: it is enabled.
+            while not ({'measured_cp', 'servo_cp', 'slave_energy'} <= far.first
                        and 'master_energy' in master.first):
-                assert time.monotonic() < deadline, 'driver, emulator or slave did not start'
+                assert time.monotonic() < deadline, ('driver, emulator, bridge or arm did not '
+                                                     'start, or the bridge was not enabled')
                 time.sleep(0.05)
             sampler.start()
             marks = operate(simulator)
@@ -212,7 +228,7 @@ def figures(samples, master, far, marks, wall_point):
         joint = np.array([torques[0], torques[1] + torques[2], *torques[2:]])
         jacobian = kinematics.jacobian(theta, ARM)
         felt.append(np.linalg.lstsq(jacobian[:3, :5].T, joint, rcond=None)[0] @ NORMAL)
-    slave_at = np.array([r[1:] for r in far['slave_pose']])
+    slave_at = np.array([r[1:] for r in far['measured_cp']])
     slave_depth = float(np.max((wall_point - slave_at) @ NORMAL))
     slave_force = [np.array(r[1:]) @ NORMAL for r in far['wrench']
                    if marks['release'] - WINDOW <= r[0] < marks['release']]

@@ -1,6 +1,10 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""Every test under integration/ starts real processes: `-m "not integration"` leaves it out."""
+"""
+Every test under integration/ starts real processes: `-m "not integration"` leaves it out.
+
+The fixture `start_demo` runs the demo as a user does (harness/demo.py).
+"""
 import pathlib
 
 import pytest
@@ -13,3 +17,20 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if HERE in pathlib.Path(item.fspath).parents:
             item.add_marker(pytest.mark.integration)
+
+
+@pytest.fixture
+def start_demo():
+    """Yield start(duration, **Demo options) -> Demo; whatever happens, nothing of it is left."""
+    from harness.demo import Demo  # ROS is imported only where a test runs the demo
+    started = []
+
+    def start(duration, **options):
+        started.append(Demo(duration, **options))
+        return started[-1]
+
+    yield start
+    for demo in started:
+        demo.kill()
+        if demo.recorder.context.ok():
+            demo.recorder.close()

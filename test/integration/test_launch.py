@@ -86,8 +86,12 @@ def installed_share(install_prefix, monkeypatch):
 
 @pytest.mark.parametrize('file_name, arguments, operator', [
     ('kraft_master.launch.py', {'arms', 'rsp', 'right_port', 'left_port', 'force_enabled',
-                                'right_params_file', 'left_params_file'}, 'sim_operator'),
+                                'right_params_file', 'left_params_file', 'crtk'},
+     'sim_operator'),
     ('teleop_demo.launch.py', {'arm', 'mode', 'rsp'}, 'operator'),
+    ('teleop.launch.py', {'arms', 'mode', 'enable', 'rsp', 'right_port', 'left_port',
+                          'force_enabled', 'right_params_file', 'left_params_file'},
+     'sim_operator'),
 ])
 def test_launch_description_declares_its_arguments(installed_share, file_name, arguments,
                                                    operator):
@@ -114,7 +118,7 @@ def readme_launch_commands():
 def test_readme_launch_commands_use_declared_arguments_and_choices(installed_share):
     commands = readme_launch_commands()
     assert {file_name for file_name, _ in commands} == {
-        'kraft_master.launch.py', 'teleop_demo.launch.py'}
+        'kraft_master.launch.py', 'teleop_demo.launch.py', 'teleop.launch.py'}
     for file_name, arguments in commands:
         declarations = declared(load(file_name).generate_launch_description())
         for name, value in arguments.items():
@@ -132,6 +136,13 @@ def test_each_driver_gets_its_params_file_and_the_arms_names(installed_share):
         assert files == [str(installed_share / 'config' / f'{arm}_arm.yaml')]
         assert {k: values[k] for k in driver_names(arm)} == driver_names(arm)
         assert values['sim_operator'] == 'push'
+        assert values['crtk_names'] is False
+
+
+def test_the_crtk_argument_gives_each_driver_the_crtk_names(installed_share):
+    description = load('kraft_master.launch.py').generate_launch_description()
+    context, nodes = expand(description, arms='both', crtk='true')
+    assert [node_parameters(context, node)[1]['crtk_names'] for node in nodes] == [True, True]
 
 
 def test_params_file_argument_replaces_the_shipped_one(installed_share, tmp_path):
@@ -158,7 +169,8 @@ def test_rsp_without_robot_state_publisher_stops_the_launch_before_any_process(i
     with pytest.raises(PackageNotFoundError):
         get_package_prefix('robot_state_publisher')
     for file_name, arguments in (('kraft_master.launch.py', {'arms': 'both'}),
-                                 ('teleop_demo.launch.py', {})):
+                                 ('teleop_demo.launch.py', {}),
+                                 ('teleop.launch.py', {'arms': 'both'})):
         started = []
         with pytest.raises(Exception, match='needs the ROS package robot_state_publisher'):
             start_in_launch_order(load(file_name).generate_launch_description(), started,
@@ -180,12 +192,48 @@ def test_rsp_adds_a_robot_state_publisher_per_arm(installed_share, install_prefi
         (PACKAGE, 'kraft_master_node'), ('robot_state_publisher', 'robot_state_publisher')] * 2
 
 
-@pytest.mark.parametrize('mode, count', [('position', 2), ('rate', 3)])
-def test_teleop_demo_includes_the_driver_and_starts_the_slave(installed_share, mode, count):
+def included_arguments(context, include):
+    """Return the launch arguments an IncludeLaunchDescription passes, as strings."""
+    return {launch.utilities.perform_substitutions(context, name):
+            launch.utilities.perform_substitutions(context, value)
+            for name, value in include.launch_arguments}
+
+
+@pytest.mark.parametrize('arms, expected', [('right', ('right',)), ('left', ('left',)),
+                                            ('both', ('right', 'left'))])
+@pytest.mark.parametrize('mode', ['pose', 'twist'])
+def test_teleop_runs_per_arm_its_driver_bridge_and_simulated_arm_in_its_frames(
+        installed_share, arms, expected, mode):
+    module = load('teleop.launch.py')
+    context, actions = expand(module.generate_launch_description(), arms=arms, mode=mode,
+                              right_port='sim', enable='false')
+    include, *nodes = actions
+    assert isinstance(include, launch.actions.IncludeLaunchDescription)
+    passed = included_arguments(context, include)
+    assert passed['arms'] == arms and passed['right_port'] == 'sim'
+    assert passed['force_enabled'] == 'true'
+    assert [(n.node_package, n.node_executable) for n in nodes] == [
+        (PACKAGE, 'kraft_master_teleop'), (PACKAGE, module.ARM)] * len(expected)
+    for arm, bridge, simulated in zip(expected, nodes[::2], nodes[1::2]):
+        bridge_values = node_parameters(context, bridge)[1]
+        arm_values = node_parameters(context, simulated)[1]
+        # Each pair in its arm's namespace, on the driver's base frame, the arm's frames agreed.
+        for node in (bridge, simulated):
+            assert launch.utilities.perform_substitutions(
+                context, node._Node__node_namespace) == arm
+        assert bridge_values['master_frame'] == driver_names(arm)['base_frame']
+        for name in ('arm_frame', 'ft_frame'):
+            assert bridge_values[name] == arm_values[name]
+            assert bridge_values[name].startswith(f'{arm}_')
+        assert bridge_values['mode'] == arm_values['mode'] == mode
+        assert bridge_values['enable_at_start'] is False
+
+
+def test_teleop_demo_runs_teleop_for_one_simulated_arm_enabled_at_start(installed_share):
     context, actions = expand(load('teleop_demo.launch.py').generate_launch_description(),
-                              mode=mode)
-    assert len(actions) == count
-    assert isinstance(actions[0], launch.actions.IncludeLaunchDescription)
-    slave = actions[1]
-    assert (slave.node_package, slave.node_executable) == (PACKAGE, 'kraft_master_slave_sim')
-    assert node_parameters(context, slave)[1]['base_frame'] == driver_names('right')['base_frame']
+                              arm='left', mode='twist')
+    (include,) = actions
+    assert isinstance(include, launch.actions.IncludeLaunchDescription)
+    assert included_arguments(context, include) == {
+        'arms': 'left', 'left_port': 'sim', 'force_enabled': 'true', 'enable': 'true',
+        'sim_operator': 'sweep', 'rsp': 'false', 'mode': 'twist'}

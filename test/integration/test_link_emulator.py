@@ -236,12 +236,13 @@ def readme_example():
     return commands
 
 
-def test_the_readme_example_relays_pose_to_the_slave_and_its_wrench_back(install_prefix):
+def test_the_readme_example_relays_pose_to_the_bridge_and_its_wrench_back(install_prefix):
     domains = {}
     processes = []
     example = readme_example()
     assert [executable for _, executable, _ in example] == [
-        'kraft_master_node', 'kraft_master_slave_sim', 'kraft_master_link_emulator']
+        'kraft_master_node', 'kraft_master_teleop', 'kraft_master_slave_sim',
+        'kraft_master_link_emulator']
     for domain, _, _ in example:
         domains.setdefault(domain, next_domain_id())
     sides = {}
@@ -257,9 +258,10 @@ def test_the_readme_example_relays_pose_to_the_slave_and_its_wrench_back(install
         master, slave = (Side(domains[d]) for d in sorted(domains))
         sides = {'master': master, 'slave': slave}
         wrenches = Arrivals(master, WrenchStamped, 'wrench')
-        slave_poses = Arrivals(slave, PoseStamped, 'slave_pose')
-        # The slave moves once the driver's pose reached it; its wrench comes back delayed.
-        wait_for(lambda: len(slave_poses.records) > 10 and len(wrenches.records) > 10,
+        commands = Arrivals(slave, PoseStamped, 'servo_cp')
+        # The bridge enables itself and commands the arm once the driver's pose reached it;
+        # its wrench comes back delayed.
+        wait_for(lambda: len(commands.records) > 10 and len(wrenches.records) > 10,
                  timeout=90.0)
         assert wrenches.delays().min() > 0.05
         emulator = processes[-1]

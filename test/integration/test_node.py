@@ -401,9 +401,9 @@ def run_until_line(prefix, name, parameters, pattern, timeout=30.0):
 def test_slave_sim_takes_integers_for_its_doubles(install_prefix):
     code, output = run_until_line(
         install_prefix, 'kraft_master_slave_sim',
-        [('rate_hz', '100'), ('mass', '2'), ('wall.point', '[0, 0, -1]')], r'slave in')
+        [('rate_hz', '100'), ('mass', '2'), ('wall.point', '[0, 0, -1]')], r'simulated arm in')
     assert code == 0, output
-    assert 'slave in position mode at 100 Hz' in output, output
+    assert 'simulated arm in pose mode at 100 Hz' in output, output
 
 
 @pytest.mark.parametrize('name, source, key, nearest', [

@@ -69,13 +69,17 @@ def test_policy_has_the_structure_of_sros2_policy_format_0_2_0():
                 assert all(e.text and e.text.strip() == e.text and not len(e) for e in group)
 
 
-def test_every_namespace_of_the_package_has_the_same_profile():
-    for path in (DRIVER, SLAVE):
+def test_every_namespace_of_the_package_has_the_same_profile_per_node():
+    for path, nodes in ((DRIVER, {'kraft_master_node'}),
+                        (SLAVE, {'kraft_master_teleop', 'kraft_master_slave_sim'})):
         profiles = enclave_profiles(path)
-        assert {p.get('ns') for p in profiles} == NAMESPACES
-        contents = {tuple((g.tag, tuple(g.attrib.items()), tuple(e.text for e in g))
-                          for g in p) for p in profiles}
-        assert len(contents) == 1 and {p.get('node') for p in profiles} != {None}
+        assert {p.get('node') for p in profiles} == nodes
+        for node in nodes:
+            of_node = [p for p in profiles if p.get('node') == node]
+            assert sorted(p.get('ns') for p in of_node) == sorted(NAMESPACES)
+            contents = {tuple((g.tag, tuple(g.attrib.items()), tuple(e.text for e in g))
+                              for g in p) for p in of_node}
+            assert len(contents) == 1
 
 
 def test_only_the_slave_enclave_may_publish_wrench():
@@ -131,21 +135,30 @@ def running_nodes(install_prefix):
         process.kill()
 
 
-def test_policy_names_exactly_the_endpoints_of_the_running_driver_and_slave(running_nodes):
-    profiles = {path: next(p for p in enclave_profiles(path) if p.get('ns') == '/right')
-                for path in (DRIVER, SLAVE)}
-    expected = {path: grants(profile) for path, profile in profiles.items()}
+def test_policy_names_exactly_the_endpoints_of_the_running_nodes(running_nodes):
+    expected = {node: grants(next(p for p in enclave_profiles(path)
+                                  if p.get('ns') == '/right' and p.get('node') == node))
+                for path, node in ((DRIVER, 'kraft_master_node'), (SLAVE, 'kraft_master_teleop'),
+                                   (SLAVE, 'kraft_master_slave_sim'))}
     driver = running_nodes('kraft_master_node', 'kraft_master_node', [('port', 'sim')])
-    # The slave's subscriptions depend on its mode: the policy allows both.
-    slave_modes = [running_nodes('kraft_master_slave_sim', 'kraft_master_slave_sim',
-                                 [('mode', mode)]) for mode in ('position', 'rate')]
+    # The bridge's and the arm's endpoints depend on their mode (and the bridge's joy on its
+    # clutch_button): the policy allows both modes.
+    bridge_modes = [running_nodes('kraft_master_teleop', 'kraft_master_teleop', parameters)
+                    for parameters in ([('mode', 'pose')],
+                                       [('mode', 'twist'), ('clutch_button', '0')])]
+    arm_modes = [running_nodes('kraft_master_slave_sim', 'kraft_master_slave_sim',
+                               [('mode', mode)]) for mode in ('pose', 'twist')]
 
-    def slave():
-        return merged(*(mode() for mode in slave_modes))
+    def bridge():
+        return merged(*(mode() for mode in bridge_modes))
 
-    for path, graph in ((DRIVER, driver), (SLAVE, slave)):
+    def arm():
+        return merged(*(mode() for mode in arm_modes))
+
+    for node, graph in (('kraft_master_node', driver), ('kraft_master_teleop', bridge),
+                        ('kraft_master_slave_sim', arm)):
         try:
-            wait_for(lambda: graph() == expected[path], timeout=60.0)
+            wait_for(lambda: graph() == expected[node], timeout=60.0)
         except AssertionError:
             pass
-        assert graph() == expected[path]
+        assert graph() == expected[node]

@@ -2,6 +2,7 @@
 # Licensed under the Apache License, Version 2.0
 """The installed kraft_master_teleop, driven by a stand-in master and arm in this process."""
 import collections
+import importlib.util
 import math
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
@@ -15,11 +16,12 @@ from std_srvs.srv import SetBool, Trigger
 
 pytestmark = pytest.mark.integration
 
+TF2_ROS = importlib.util.find_spec('tf2_ros') is not None
 ARM_HOME = np.array([0.4, 0.1, 0.3])
 MASTER_START = np.array([0.12, -0.05, 0.2])
 # Generous timeouts: the test's own publishing pace must never trip them on a loaded machine.
 QUIET = [('master_timeout', '0.5'), ('arm_timeout', '2.0'), ('ft_timeout', '2.0'),
-         ('max_linear_speed', '5.0')]
+         ('max_linear_speed', '10.0')]
 
 
 def positions(messages):
@@ -43,12 +45,12 @@ class Rig:
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.servo_cp, self.servo_cv, self.wrenches, self.states = (
             collections.deque(maxlen=5000) for _ in range(4))
-        node.create_subscription(PoseStamped, 'servo_cp', lambda m, d=self.servo_cp: d.append(m),
-                                 reliable)
-        node.create_subscription(TwistStamped, 'servo_cv', lambda m, d=self.servo_cv: d.append(m),
-                                 reliable)
-        node.create_subscription(WrenchStamped, 'wrench', lambda m, d=self.wrenches: d.append(m),
-                                 reliable)
+        self.cutoff = 0  # ns: what the bridge stamped earlier is forgotten (forget())
+        for msg_type, topic, kept in ((PoseStamped, 'servo_cp', self.servo_cp),
+                                      (TwistStamped, 'servo_cv', self.servo_cv),
+                                      (WrenchStamped, 'wrench', self.wrenches)):
+            node.create_subscription(msg_type, topic, lambda m, d=kept: self._keep(m, d),
+                                     reliable)
         node.create_subscription(String, 'operating_state', lambda m: self.states.append(m.data),
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
@@ -135,13 +137,20 @@ class Rig:
             *positions(list(self.servo_cp)[-2:])))
         return positions([self.servo_cp[-1]])[0]
 
+    def _keep(self, msg, kept):
+        stamp = msg.header.stamp
+        if stamp.sec * 1_000_000_000 + stamp.nanosec >= self.cutoff:
+            kept.append(msg)
+
     def forget(self):
         """Drop the commands and wrenches received so far, and any still on their way."""
-        count = len(self.wrenches) + 3
-        self.run_until(lambda: len(self.wrenches) >= count)
+        # The bridge stamps each when it sends it, on this machine's clock: what it stamped
+        # before now was sent before now, whenever it comes.
+        self.cutoff = self.client.node.get_clock().now().nanoseconds
         self.servo_cp.clear()
         self.servo_cv.clear()
         self.wrenches.clear()
+        self.run_until(lambda: len(self.wrenches) > 3)
 
     def close(self):
         """Leave the domain."""
@@ -319,6 +328,21 @@ def test_enable_is_refused_without_the_inputs(start_bridge):
     assert rig.state() == 'DISABLED: not enabled'
 
 
+def test_enable_at_start_waits_for_the_inputs_then_enables_once(start_bridge):
+    rig, _ = start_bridge([('enable_at_start', 'true')], silent=['measured_cf'])
+    # Every input but the F/T reading: still DISABLED, nothing sent to the arm.
+    rig.run_until(lambda: len(rig.wrenches) > 20)
+    assert rig.state() == 'DISABLED: not enabled' and not rig.servo_cp
+    rig.streams['measured_cf'] = True
+    rig.run_until(lambda: rig.state() == 'ENABLED' and rig.servo_cp)
+    np.testing.assert_array_equal(positions(rig.servo_cp)[0], ARM_HOME)
+    # Once: disabled, it stays so.
+    assert rig.enable(False).success
+    rig.forget()
+    rig.run_until(lambda: len(rig.wrenches) > 20)
+    assert rig.state() == 'DISABLED: disabled' and not rig.servo_cp
+
+
 def test_twist_mode_drives_toward_the_target_and_stops_when_clutched(start_bridge):
     rig, _ = start_bridge([('mode', 'twist'), ('twist_gain', '10.0')])
     assert rig.enable().success
@@ -346,3 +370,35 @@ def test_a_bad_parameter_exits_1_naming_it(install_prefix, name, value, fragment
     code, output = process.wait_exit()
     assert code == 1, output
     assert fragment in output and len(output.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(TF2_ROS, reason='tf2_ros is installed here: this refusal cannot happen')
+def test_base_rotation_from_tf_without_tf2_ros_exits_1_saying_so(install_prefix):
+    process = DriverProcess(install_prefix, next_domain_id(), [('base_rotation_from_tf', 'true')],
+                            name='kraft_master_teleop')
+    code, output = process.wait_exit()
+    assert code == 1, output
+    assert 'base_rotation_from_tf needs tf2_ros' in output
+    assert len(output.strip().splitlines()) == 1
+
+
+@pytest.mark.skipif(not TF2_ROS, reason='tf2_ros and tf2_msgs are not on PyPI: they cannot be '
+                    'installed on this machine')
+def test_base_rotation_from_tf_turns_master_motion_at_enable(start_bridge):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+    rig, _ = start_bridge([('base_rotation_from_tf', 'true')])
+    static = rig.client.node.create_publisher(TFMessage, '/tf_static', QoSProfile(
+        depth=1, reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    transform = TransformStamped()
+    transform.header.frame_id, transform.child_frame_id = 'base_link', 'kraft_master_base'
+    transform.transform.rotation.z = transform.transform.rotation.w = math.sqrt(0.5)
+    static.publish(TFMessage(transforms=[transform]))
+    # Enable is refused until the bridge has heard the transform.
+    rig.run_until(lambda: rig.enable().success)
+    rig.run_until(lambda: rig.servo_cp)
+    rig.move_master((0.02, 0.0, 0.0))
+    # The master's +x is the arm's +y.
+    rig.run_until(lambda: np.allclose(positions([rig.servo_cp[-1]])[0],
+                                      ARM_HOME + (0.0, 0.02, 0.0), atol=1e-9))

@@ -1,51 +1,29 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""doc/bridge.md says what kraft_master_teleop does: its parameters and its safety tests."""
-import re
-
+"""doc/bridge.md says what the bridge and the simulated arm do: parameters, safety tests."""
 from harness import REPO
-from kraft_master_driver.nodes.teleop import PARAMETERS
+from harness.doc_tables import expected_row, table_rows, undefined_tests
+from kraft_master_driver.nodes import slave_sim, teleop
 import pytest
 
 PAGE = (REPO / 'doc' / 'bridge.md').read_text()
-ROWS = {m.group(1): (m.group(2).strip(), m.group(3).strip()) for m in re.finditer(
-    r'^\| `([a-z_]+)` \| ([^|]+) \| ([^|]*) \| [^|]+ \|$',
-    PAGE.split('## Parameters', 1)[1].split('\n## ', 1)[0], re.MULTILINE)}
+TABLES = {'Parameters': teleop.PARAMETERS, 'The simulated arm': slave_sim.PARAMETERS}
+ROWS = {heading: table_rows(PAGE, heading) for heading in TABLES}
+CASES = [(heading, name) for heading, parameters in TABLES.items() for name in parameters]
 
 
-def number(value):
-    """Return a number as the table writes it: integers as integers."""
-    if isinstance(value, int) or float(value).is_integer() and abs(value) < 1e15:
-        return str(int(value))
-    return f'{value:g}'
+@pytest.mark.parametrize('heading, name', CASES)
+def test_every_parameter_is_in_the_table_with_its_default_and_range(heading, name):
+    rows = ROWS[heading]
+    assert name in rows, f'doc/bridge.md, {heading}: no row for parameter {name}'
+    assert rows[name] == expected_row(TABLES[heading][name])
 
 
-def shown(value):
-    """Return a default as the table writes it."""
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, list):
-        return '`[' + ', '.join(number(x) for x in value) + ']`'
-    return f'`{value}`' if isinstance(value, str) else f'`{number(value)}`'
-
-
-@pytest.mark.parametrize('name', PARAMETERS)
-def test_every_parameter_is_in_the_table_with_its_default_and_range(name):
-    assert name in ROWS, f'doc/bridge.md has no row for parameter {name}'
-    spec = PARAMETERS[name]
-    bounds = (', '.join(spec.choices) if spec.choices
-              else '' if spec.low is None else f'{number(spec.low)} .. {number(spec.high)}')
-    assert ROWS[name] == (shown(spec.default), bounds)
-
-
-def test_the_table_has_no_stale_parameter():
-    assert ROWS and set(ROWS) <= set(PARAMETERS)
+@pytest.mark.parametrize('heading', TABLES)
+def test_the_table_has_no_stale_parameter(heading):
+    assert ROWS[heading] and set(ROWS[heading]) <= set(TABLES[heading])
 
 
 def test_every_test_the_page_names_exists():
-    named = set(re.findall(r'`(test_\w+)`', PAGE))
-    defined = set()
-    for name in ('test_teleoperation.py', 'test_teleop_node.py'):
-        for path in (REPO / 'test').rglob(name):  # wherever the test files are moved
-            defined |= set(re.findall(r'^def (test_\w+)', path.read_text(), re.MULTILINE))
-    assert named and named <= defined, named - defined
+    assert not undefined_tests(PAGE, ('test_teleoperation.py', 'test_teleop_node.py',
+                                      'test_slave_sim.py', 'test_slave_sim_node.py'))

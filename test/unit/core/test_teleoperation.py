@@ -209,6 +209,18 @@ def test_base_rotation_turns_master_motion_and_the_force_back(base_rotation):
                                [3.0, 0.0, 0.0, 0, 0, 0], atol=1e-12)
 
 
+def test_base_rotation_set_before_enable_turns_the_mapping_and_is_fixed_while_enabled():
+    session = Session()
+    assert session.bridge.set_base_rotation((0.0, 0.0, 0.0, 2.0)) == (
+        'base_rotation: the quaternion [0.0, 0.0, 0.0, 2.0] is not of unit length')
+    assert session.bridge.set_base_rotation(about_z(math.pi / 2)) is None
+    session.enabled()
+    assert session.bridge.set_base_rotation(IDENTITY) == 'base_rotation is fixed while enabled'
+    for step in range(1, 11):
+        command = session.follow((0.001 * step, 0.0, 0.0))
+    np.testing.assert_allclose(command.position, ARM_HOME + (0.0, 0.01, 0.0), atol=1e-12)
+
+
 @pytest.mark.parametrize('orientation, expected_yaw', [
     ('follow', 0.2), ('fixed', 0.0), ('ignore', 0.05)])
 def test_orientation_followed_held_or_ignored(orientation, expected_yaw):

@@ -1,12 +1,12 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""The simulated slave's physics, plain Python (the node: integration/test_slave_sim_node.py)."""
+"""The simulated arm's physics and servo, plain Python (the node: test_slave_sim_node.py)."""
 import collections
 import math
 
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.nodes.slave_sim import (
-    integrate_quaternion, MasterSlaveMap, MAX_STEP, SlaveArm, SlaveLimits, SoftBox, Wall)
+    ArmServo, integrate_quaternion, MAX_STEP, SlaveArm, SlaveLimits, SoftBox, Wall)
 import numpy as np
 import pytest
 
@@ -75,8 +75,8 @@ def test_box_pushes_out_through_the_nearest_face():
     (lambda: SoftBox((0, 0, 0), (0.1, 0.0, 0.1), 1.0, 1.0), 'box.half_sizes'),
     (lambda: SlaveArm(LIMITS._replace(mass=0.0)), 'mass'),
     (lambda: SlaveArm(LIMITS._replace(max_velocity=math.inf)), 'max_velocity'),
-    (lambda: MasterSlaveMap(scale=-1.0), 'scale'),
-    (lambda: MasterSlaveMap(offset=(1.0, 2.0)), 'offset'),
+    (lambda: ArmServo(floor_arm(), 'rate', 0.1), 'mode'),
+    (lambda: ArmServo(floor_arm(), 'pose', 0.0), 'command_timeout'),
 ])
 def test_bad_settings_raise_naming_the_setting(make, fragment):
     with pytest.raises(ValueError, match=fragment):
@@ -154,22 +154,98 @@ def test_a_long_stall_is_skipped_not_replayed():
     assert arm.position[1] < 0.25 * 0.1
 
 
-# -- master <-> slave ----------------------------------------------------------------------
+# -- the servo: commands, timeout, hold ------------------------------------------------
 
-def test_map_scales_about_the_centre_and_reflects_with_the_transpose():
-    mapping = MasterSlaveMap(scale=2.0, offset=(1.0, 0.0, 0.5), centre=(0.3, -0.1, 0.1))
-    np.testing.assert_allclose(mapping.target((0.3, -0.1, 0.1)), [1.0, 0.0, 0.5])
-    np.testing.assert_allclose(mapping.target((0.4, -0.1, 0.0)), [1.2, 0.0, 0.3])
-    master_velocity, slave_force = np.array([0.1, -0.2, 0.3]), np.array([4.0, 5.0, -6.0])
-    # The same power at both ends.
-    assert mapping.reflect(slave_force) @ master_velocity == pytest.approx(
-        slave_force @ mapping.velocity(master_velocity))
+HALF_TURN_ABOUT_Z = (0.0, 0.0, 1.0, 0.0)
 
 
-def test_map_without_centre_takes_the_first_master_position():
-    mapping = MasterSlaveMap(offset=(0.0, 0.0, 1.0))
-    np.testing.assert_allclose(mapping.target((0.3, 0.2, 0.1)), [0.0, 0.0, 1.0])
-    np.testing.assert_allclose(mapping.target((0.3, 0.25, 0.1)), [0.0, 0.05, 1.0])
+def serve(servo, seconds, now, command=None):
+    """Advance the servo tick by tick from `now`, sending `command(now)` each tick; return now."""
+    for _ in range(round(seconds / MAX_STEP)):
+        if command is not None:
+            command(now)
+        now += MAX_STEP
+        servo.advance(MAX_STEP, now)
+    return now
+
+
+def test_the_arm_does_not_move_before_its_first_command():
+    arm = SlaveArm(LIMITS)
+    arm.reset((0.1, 0.2, 0.3))
+    servo = ArmServo(arm, 'pose', timeout=0.1)
+    serve(servo, 1.0, 0.0)
+    np.testing.assert_array_equal(arm.position, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(arm.velocity, np.zeros(3))
+    assert servo.orientation == (0.0, 0.0, 0.0, 1.0)
+
+
+def test_pose_mode_follows_the_target_and_takes_its_orientation():
+    arm = SlaveArm(LIMITS)
+    arm.reset((0.0, 0.0, 0.0))
+    servo = ArmServo(arm, 'pose', timeout=0.1)
+    serve(servo, 2.0, 0.0, lambda t: servo.pose_command((0.05, 0.0, -0.02), HALF_TURN_ABOUT_Z, t))
+    np.testing.assert_allclose(arm.position, [0.05, 0.0, -0.02], atol=1e-6)
+    assert servo.orientation == HALF_TURN_ABOUT_Z
+
+
+def test_a_stale_command_holds_the_arm_where_it_was():
+    arm = SlaveArm(LIMITS)
+    arm.reset((0.0, 0.0, 0.0))
+    servo = ArmServo(arm, 'pose', timeout=0.1)
+    now = serve(servo, 0.2, 0.0, lambda t: servo.pose_command((1.0, 0.0, 0.0), (0, 0, 0, 1), t))
+    assert 0.0 < arm.position[0] < 0.05
+    now = serve(servo, 0.1, now)  # the command goes stale within this tenth of a second
+    stale_at = servo.hold.copy()
+    serve(servo, 2.0, now)
+    np.testing.assert_allclose(arm.position, stale_at, atol=1e-6)
+    np.testing.assert_allclose(arm.velocity, np.zeros(3), atol=1e-6)
+
+
+def test_twist_mode_moves_and_turns_at_the_command_then_stops_when_it_is_stale():
+    arm = SlaveArm(LIMITS)
+    arm.reset((0.0, 0.0, 0.0))
+    servo = ArmServo(arm, 'twist', timeout=0.1)
+    now = serve(servo, 1.0, 0.0,
+                lambda t: servo.twist_command((0.0, 0.1, 0.0), (0.0, 0.0, math.pi / 2), t))
+    np.testing.assert_allclose(arm.velocity, [0.0, 0.1, 0.0], atol=1e-9)
+    np.testing.assert_allclose(servo.orientation, integrate_quaternion(
+        (0, 0, 0, 1), (0.0, 0.0, math.pi / 2), 1.0), atol=1e-9)
+    serve(servo, 2.0, now)
+    np.testing.assert_allclose(arm.velocity, np.zeros(3), atol=1e-6)
+    assert 0.09 < arm.position[1] < 0.1 + LIMITS.max_velocity * 0.1
+
+
+def test_a_refused_command_holds_the_arm():
+    arm = SlaveArm(LIMITS)
+    arm.reset((0.0, 0.0, 0.0))
+    servo = ArmServo(arm, 'pose', timeout=10.0)
+    now = serve(servo, 0.2, 0.0, lambda t: servo.pose_command((1.0, 0.0, 0.0), (0, 0, 0, 1), t))
+    with pytest.raises(ValueError, match='unit quaternion'):
+        servo.pose_command((1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.5), now)
+    servo.refuse()
+    position = arm.position.copy()
+    serve(servo, 2.0, now)
+    assert np.linalg.norm(arm.position - position) < 0.01
+
+
+@pytest.mark.parametrize('command, fragment', [
+    (lambda s: s.pose_command((0.0, math.nan, 0.0), (0, 0, 0, 1), 0.0), 'servo_cp position'),
+    (lambda s: s.pose_command((0.0, 0.0), (0, 0, 0, 1), 0.0), 'servo_cp position'),
+    (lambda s: s.pose_command((0.0, 0.0, 0.0), (0, 0, math.inf, 1), 0.0), 'unit quaternion'),
+    (lambda s: s.twist_command((0.0, 0.0, math.nan), (0, 0, 0), 0.0), 'servo_cv linear'),
+    (lambda s: s.twist_command((0.0, 0.0, 0.0), (0, 0), 0.0), 'servo_cv angular'),
+])
+def test_bad_commands_raise_naming_what_is_wrong(command, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        command(ArmServo(floor_arm(), 'pose', 0.1))
+
+
+def test_the_sensor_reading_is_the_contact_force_in_the_tool_frame():
+    servo = ArmServo(floor_arm(), 'pose', 0.1)
+    np.testing.assert_array_equal(servo.sensor_wrench((1.0, 2.0, 3.0)), [1, 2, 3, 0, 0, 0])
+    servo.pose_command((0.0, 0.0, 0.0), HALF_TURN_ABOUT_Z, 0.0)
+    np.testing.assert_allclose(servo.sensor_wrench((1.0, 2.0, 3.0)), [-1, -2, 3, 0, 0, 0],
+                               atol=1e-12)
 
 
 @settings(max_examples=50, deadline=None)

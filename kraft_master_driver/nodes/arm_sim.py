@@ -1,0 +1,272 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+kraft_master_arm_sim: a Franka Panda simulated in MuJoCo, speaking an arm's CRTK topics.
+
+It takes `servo_cp` (PoseStamped: the tool's target) or `servo_cv` (TwistStamped: a velocity
+that moves the target) in `arm_frame`, and publishes `measured_cp` (the tool's pose in
+`arm_frame`), `measured_js` (JointState) and `measured_cf` (the wrist F/T sensor's reading in
+`ft_frame`: the wrench the tool applies to the sensor), as the arm side of kraft_master_teleop
+expects them. The physics steps 1 ms at a time, paced to the wall clock, and its real-time
+factor is in the diagnostics. A command older than command_timeout, or none, holds the arm
+still. The arm, its controller and its table are simulation.arm_physics.PandaArm (no ROS);
+this node only moves messages.
+"""
+import math
+import sys
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from kraft_master_driver.link import cdr
+from kraft_master_driver.nodes.lifecycle import run_node
+from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
+from kraft_master_driver.nodes.ros_helpers import (
+    GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
+from kraft_master_driver.simulation.arm_physics import (
+    ArmModelMissing, Gains, JOINT_NAMES, PandaArm, SensorModel, Table)
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+MAX_CATCH_UP_STEPS = 20  # steps run at once after a late wake-up; time beyond is dropped
+TICK_QUEUE = 10
+
+POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
+TWIST_STAMPED = cdr.StampedDoublesDecoder('TwistStamped', 6)
+
+_GAINS, _TABLE, _SENSOR = Gains(), Table(), SensorModel()
+
+PARAMETERS = {
+    'publish_rate_hz': Spec(500.0, 'Rate of measured_cp, measured_cf and measured_js (Hz); the '
+                            'physics always steps at 1 kHz.', low=1.0, high=1000.0),
+    'arm_frame': Spec('base_link', 'frame_id of servo_cp, servo_cv and measured_cp: the '
+                      "arm's base frame."),
+    'ft_frame': Spec('ft_sensor', 'frame_id of measured_cf: the F/T sensor at the flange, '
+                     'turned as the tool frame.'),
+    'command_timeout': Spec(0.1, 'An older servo_cp or servo_cv holds the arm where it is '
+                            '(s).', low=0.001, high=10.0),
+    'translational_stiffness': Spec(_GAINS.translational_stiffness, 'Cartesian stiffness '
+                                    '(N/m).', low=1.0, high=5000.0),
+    'rotational_stiffness': Spec(_GAINS.rotational_stiffness, 'Rotational stiffness '
+                                 '(N*m/rad).', low=0.1, high=300.0),
+    'damping_ratio': Spec(_GAINS.damping_ratio, 'Damping: 2 * ratio * sqrt(stiffness) (1).',
+                          low=0.0, high=10.0),
+    'nullspace_stiffness': Spec(_GAINS.nullspace_stiffness, 'Pull toward the ready posture in '
+                                "the task's nullspace (N*m/rad).", low=0.0, high=100.0),
+    'joint_damping': Spec(_GAINS.joint_damping, 'Viscous friction of each joint '
+                          '(N*m*s/rad).', low=0.0, high=100.0),
+    'max_position_error': Spec(_GAINS.max_position_error, 'A farther target pulls as if this '
+                               'far (m).', low=0.001, high=1.0),
+    'max_rotation_error': Spec(_GAINS.max_rotation_error, 'A target turned farther pulls as if '
+                               'turned this far (rad).', low=0.001, high=math.pi),
+    'table.centre': Spec(list(_TABLE.centre), "x, y of the table top's middle (m, arm base "
+                         'frame).'),
+    'table.half_sizes': Spec(list(_TABLE.half_sizes), 'Half the table top along x and y (m).'),
+    'table.height': Spec(_TABLE.height, 'Height of the table top (m, arm base frame).'),
+    'table.stiffness': Spec(_TABLE.stiffness, 'Stiffness of the spring under the table top (N/m).',
+                            low=10.0, high=1e6),
+    'table.damping': Spec(_TABLE.damping, 'Damping of the spring under the table top (N*s/m).',
+                          low=0.0, high=1e4),
+    'table.friction': Spec(_TABLE.friction, 'Friction coefficient of the table and the '
+                           'fingertips (1).', low=0.0, high=2.0),
+    'force_bias': Spec(list(_SENSOR.force_bias), 'Constant bias added to the F/T force (N).'),
+    'torque_bias': Spec(list(_SENSOR.torque_bias), 'Constant bias added to the F/T moment '
+                        '(N*m).'),
+    'force_noise': Spec(_SENSOR.force_noise, 'Standard deviation of white noise on each force '
+                        'axis (N).', low=0.0, high=100.0),
+    'torque_noise': Spec(_SENSOR.torque_noise, 'Standard deviation of white noise on each '
+                         'moment axis (N*m).', low=0.0, high=10.0),
+}
+
+
+def _make_arm(config):
+    """Return the PandaArm the parameters describe; ParameterError naming a bad one."""
+    try:
+        table = Table(*(config[f'table.{name}'] for name in Table._fields))
+        gains = Gains(*(config[name] for name in Gains._fields))
+        sensor = SensorModel(*(config[name] for name in SensorModel._fields))
+        return PandaArm(table.checked(), gains, sensor, config['command_timeout'])
+    except ValueError as error:
+        raise ParameterError(f'parameter {error}') from None
+    except ArmModelMissing as error:
+        raise ParameterError(f'cannot build the arm: {error}') from None
+
+
+class ArmSimNode(Node):
+    """Steps a PandaArm at 1 kHz in a thread of its own and moves its messages."""
+
+    def __init__(self, params_files=(), **kwargs):
+        """Declare and check the parameters, build the arm, start the physics thread."""
+        super().__init__('kraft_master_arm_sim', **kwargs)
+        config = declare_parameters(self, PARAMETERS, params_files)
+        self.arm = _make_arm(config)
+        self.arm_frame = config['arm_frame']
+        self.publish_period = 1.0 / config['publish_rate_hz']
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.pose_pub = self.create_publisher(PoseStamped, 'measured_cp', reliable)
+        self.wrench_pub = self.create_publisher(WrenchStamped, 'measured_cf', reliable)
+        self.joints_pub = self.create_publisher(JointState, 'measured_js', reliable)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
+        self._pose_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 7)
+        self._wrench_cdr = cdr.StampedDoublesEncoder(config['ft_frame'], 6)
+        self._joints_cdr = cdr.JointStateEncoder('', JOINT_NAMES, (7, 7, 7))
+        self._pose_sub = self._taken_by_ticks(PoseStamped, 'servo_cp', self._on_servo_cp)
+        self._twist_sub = self._taken_by_ticks(TwistStamped, 'servo_cv', self._on_servo_cv)
+        self._refusals = 0
+        self._last_refusal = ''
+        self._window = (time.monotonic(), self.arm.time)  # wall and simulated time
+        self.real_time_factor = None
+        self._steps = 0
+        self._step_seconds = 0.0  # CPU seconds spent stepping, this window
+        self._dropped = 0.0  # s of simulated time skipped after stalls, in all
+        self._snapshot = (self.arm.tool_position(), self.arm.table_contact_force(), True)
+        steady_timer(self, 1.0, self._publish_diagnostics)
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name='arm_sim')
+        self._thread.start()
+        mass, com = self.arm.tool_mass_properties()
+        position = self.arm.tool_position()
+        self.get_logger().info(
+            'Panda at ' + ', '.join(f'{v:.3f}' for v in position) + ' m, table top at '
+            f'{config["table.height"]:g} m; tool {mass:.4f} kg, centre of mass '
+            + ', '.join(f'{v:.4f}' for v in com) + f' m in {config["ft_frame"]} (the bridge\'s '
+            'tool_mass and tool_com)')
+
+    def _taken_by_ticks(self, msg_type, topic, on_message):
+        """Subscribe to `topic` raw for the physics thread; the executor never runs it."""
+        return self.create_subscription(
+            msg_type, topic, on_message,
+            QoSProfile(depth=TICK_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
+            callback_group=TakenByLoopThread(),
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+
+    def _take_all(self, subscription):
+        """Hand each message that came, oldest first, to the subscription's callback."""
+        with subscription.handle:
+            while (taken := subscription.handle.take_message(
+                    subscription.msg_type, True)) is not None:
+                self._refused(subscription.callback(taken[0]))
+
+    def _refused(self, refusal):
+        if refusal is not None:
+            self._refusals += 1
+            self._last_refusal = refusal
+            self.get_logger().error(refusal, throttle_duration_sec=1.0)
+
+    def _decoded(self, decoder, topic, data):
+        """Return the values of a command in arm_frame, or the one line refusing it."""
+        try:
+            _, _, frame_id, values = decoder.decode(data)
+        except ValueError as error:
+            return None, f'{topic} refused: {error}'
+        if frame_id != self.arm_frame:
+            return None, (f'{topic} refused: frame_id {frame_id!r}, expected '
+                          f'{self.arm_frame!r}')
+        return values, None
+
+    def _on_servo_cp(self, data):
+        values, refusal = self._decoded(POSE_STAMPED, 'servo_cp', data)
+        if refusal is None:
+            refusal = self.arm.command_pose(values[:3], values[3:], time.monotonic())
+        return refusal
+
+    def _on_servo_cv(self, data):
+        values, refusal = self._decoded(TWIST_STAMPED, 'servo_cv', data)
+        if refusal is None:
+            refusal = self.arm.command_twist(values[:3], values[3:], time.monotonic())
+        return refusal
+
+    # -- the physics thread ------------------------------------------------------------
+
+    def _run(self):
+        """Step the physics on the wall clock until destroy_node() or the context's end."""
+        dt = self.arm.model.opt.timestep
+        start = time.monotonic()
+        steps_done = 0
+        next_publish = 0.0
+        while self._running and self.context.ok():
+            due = int((time.monotonic() - start) / dt) - steps_done
+            if due <= 0:
+                time.sleep(max(start + (steps_done + 1) * dt - time.monotonic(), 0.0))
+                continue
+            if due > MAX_CATCH_UP_STEPS:  # a stall: drop the time beyond, do not replay it
+                self._dropped += (due - MAX_CATCH_UP_STEPS) * dt
+                start += (due - MAX_CATCH_UP_STEPS) * dt
+                due = MAX_CATCH_UP_STEPS
+            try:
+                self._take_all(self._pose_sub)
+                self._take_all(self._twist_sub)
+                began = time.thread_time()
+                for _ in range(due):
+                    self.arm.step(time.monotonic())
+                self._step_seconds += time.thread_time() - began
+                self._steps += due
+                steps_done += due
+                if self.arm.time >= next_publish:
+                    next_publish = self.arm.time + self.publish_period - dt / 2.0
+                    self._publish_measured()
+            except Exception:  # noqa: B902 - publishing fails once a signal ends the context
+                if self._running and self.context.ok():
+                    raise
+                return
+
+    def destroy_node(self):
+        """Stop the physics thread, then the node."""
+        self._running = False
+        self._thread.join()
+        super().destroy_node()
+
+    def _publish_measured(self):
+        arm = self.arm
+        sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+        position = arm.tool_position()
+        # For the diagnostics, which run in the executor's thread.
+        self._snapshot = (position, arm.table_contact_force(), arm.holding)
+        self.pose_pub.publish(self._pose_cdr.encode(
+            sec, nanosec, [*position.tolist(), *arm.tool_quaternion()]))
+        self.wrench_pub.publish(self._wrench_cdr.encode(sec, nanosec, arm.wrench().tolist()))
+        self.joints_pub.publish(self._joints_cdr.encode(
+            sec, nanosec, arm.joint_positions().tolist(), arm.joint_velocities().tolist(),
+            arm.torque.tolist()))
+
+    def _publish_diagnostics(self):
+        """Publish the real-time factor, the cost of a step and the arm's state, at 1 Hz."""
+        now, arm = time.monotonic(), self.arm
+        wall, simulated = now - self._window[0], arm.time - self._window[1]
+        self._window = (now, arm.time)
+        self.real_time_factor = simulated / wall if wall > 0.0 else None
+        step_us = 1e6 * self._step_seconds / self._steps if self._steps else float('nan')
+        self._steps, self._step_seconds = 0, 0.0
+        position, contact, holding = self._snapshot
+        values = {
+            'real-time factor': f'{self.real_time_factor:.3f}',
+            'step CPU (us)': f'{step_us:.1f}',
+            'dropped after stalls (s)': f'{self._dropped:.3f}',
+            'command': 'holding' if holding else 'following',
+            'tool position (m)': ', '.join(f'{v:.4f}' for v in position),
+            'table contact force (N)': ', '.join(f'{v:.2f}' for v in contact),
+            'refused commands': str(self._refusals),
+            'last refusal': self._last_refusal,
+        }
+        level = DiagnosticStatus.OK if self.real_time_factor >= 0.95 else DiagnosticStatus.WARN
+        message = ('real time' if level == DiagnosticStatus.OK
+                   else f'slower than real time: {self.real_time_factor:.2f}')
+        array = DiagnosticArray(status=[DiagnosticStatus(
+            name=f'{self.get_fully_qualified_name()}: simulated arm', level=level,
+            message=message, values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
+
+
+def main(args=None):
+    """Run the simulated arm until Ctrl-C or SIGTERM; exit 1 on a bad parameter."""
+    return run_node(ArmSimNode, 'kraft_master_arm_sim', __doc__.strip().splitlines()[0],
+                    PARAMETERS, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
