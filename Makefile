@@ -20,7 +20,7 @@ CONSTRAINTS ?= --constraint $(LOCK)
 DURATION ?= 20
 DELAY_MS ?= 0
 PASSIVITY ?= off
-ARM ?= point-mass
+ARM ?= mujoco
 
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST

@@ -55,6 +55,9 @@ def main(argv=None):
     parser.add_argument('--losses', type=float, nargs='+', default=LOSSES,
                         help='fractions, e.g. 0 0.01 0.1')
     parser.add_argument('--passivity', choices=('off', 'on', 'both'), default='both')
+    parser.add_argument('--arm', choices=tuple(session.ARMS), default='point-mass',
+                        help='the simulated arm: the point mass and its wall, or the MuJoCo Panda '
+                        'and its table')
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
     args = parser.parse_args(argv)
     modes = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.passivity]
@@ -66,12 +69,13 @@ def main(argv=None):
                 (r, s, p) for r in args.round_trips for s in args.losses for p in modes):
             row = {'round_trip_ms': round_trip, 'loss_pct': 100.0 * loss,
                    'passivity': 'on' if passivity else 'off',
-                   **session.run_row(prefix, round_trip, loss, passivity, seed)}
+                   **session.run_row(prefix, round_trip, loss, passivity, seed, args.arm)}
             rows.append(row)
             print(' | '.join(form.format(row[key]) for _, key, form in COLUMNS), flush=True)
     if args.json:
         args.json.write_text(json.dumps({
-            'machine': platform.node(), 'slave': session.SLAVE, 'bridge': session.BRIDGE,
+            'machine': platform.node(), 'arm': args.arm, 'slave': session.SLAVE,
+            'bridge': session.BRIDGE,
             'wall_below_m': session.WALL_BELOW, 'past_m': session.PAST, 'hold_s': session.HOLD,
             'window_s': session.WINDOW, 'rows': rows}, indent=1))
     return 0

@@ -10,10 +10,11 @@ per core, the pty's kernel worker thread held the driver's poll() for up to 5 s 
 third of the sessions), and kraft_master_link_emulator relaying to the arm's domain with half
 the round trip each way and the given loss (with neither delay nor loss, no emulator: all
 share a domain); on the arm's host the installed bridge (kraft_master_teleop, enabled at start,
-so with the master at home) and the simulated arm (kraft_master_slave_sim) behind it. A
-recorder on each host (remote_recorder.py). The operator's hand pulls the master PAST m
-through the arm's wall (the arm follows one to one) over RAMP s, holds HOLD s, goes back over
-RAMP s and rests SETTLE s. run_row() returns the
+so with the master at home) and the simulated arm behind it: the point mass
+(kraft_master_slave_sim) and its wall WALL_BELOW m down, or the MuJoCo Panda
+(kraft_master_arm_sim) and its table. A recorder on each host (remote_recorder.py). The
+operator's hand pulls the master PAST m through the arm's surface (the arm follows one to one)
+over RAMP s, holds HOLD s, goes back over RAMP s and rests SETTLE s. run_row() returns the
 figures: master peak-to-peak along the wall normal over the last WINDOW s of the hold, the
 slave's largest penetration, the energy the channel generated (from both ports' observers), the
 steady force at the slave and the force the operator feels (J^T F read back from the torques
@@ -29,6 +30,7 @@ import subprocess
 import sys
 import threading
 import time
+from typing import NamedTuple
 
 from harness.driver import executable, installed_env, next_domain_id
 from harness.netns import TwoHosts
@@ -134,8 +136,45 @@ class Recorder:
         return json.loads(self.output)
 
 
-def run_row(prefix, round_trip_ms, loss, passivity, seed):
+class Arm(NamedTuple):
+    """The simulated arm behind the bridge: where it starts and where its surface is."""
+
+    executable: str
+    parameters: tuple  # (name, value) of the arm node
+    bridge: tuple  # (name, value) the bridge needs for this arm
+    start: np.ndarray  # m, its tool's position at start (arm base frame)
+    surface: np.ndarray  # m, a point of the surface it meets (arm base frame)
+    surface_below: float  # m from its start down to the surface
+
+
+def point_mass_arm():
+    """Return the point-mass arm (kraft_master_slave_sim) starting at the master's home."""
+    surface = HOME - WALL_BELOW * NORMAL
+    return Arm('kraft_master_slave_sim', (
+        ('start_position', vector(HOME)), ('box.stiffness', 0.0),
+        ('wall.point', vector(surface)), ('wall.normal', vector(NORMAL)),
+        *((name, float(value)) for name, value in SLAVE.items())), (), HOME, surface,
+        WALL_BELOW)
+
+
+def panda_arm():
+    """Return the MuJoCo Panda (kraft_master_arm_sim, its defaults) and its table."""
+    # MuJoCo and the demo's settings only where the Panda is asked for.
+    from kraft_master_driver.simulation.arm_physics import PandaArm
+    from kraft_master_driver.tools.demo import BRIDGE as DEMO_BRIDGE, MUJOCO_BRIDGE, TABLE_Z
+    start = PandaArm().tool_position()
+    # The bridge as the demo sets it for the Panda: its tool, the box in front of it.
+    tokens = MUJOCO_BRIDGE[len(DEMO_BRIDGE):]
+    return Arm('kraft_master_arm_sim', (), tuple(t.split(':=', 1) for t in tokens[1::2]),
+               start, np.array([start[0], start[1], TABLE_Z]), float(start[2] - TABLE_Z))
+
+
+ARMS = {'point-mass': point_mass_arm, 'mujoco': panda_arm}
+
+
+def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass'):
     """Run one session on two hosts; return its figures (NamespacesRefused if not allowed)."""
+    arm = ARMS[arm]()
     simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000, transport='tcp')
     samples = []
     sampling = threading.Event()
@@ -153,7 +192,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
     # domain, so that the latencies are the network's and DDS's, not the relay's.
     direct = round_trip_ms == 0 and loss == 0
     slave_domain = master_domain if direct else next_domain_id()
-    wall_point = HOME - WALL_BELOW * NORMAL
+    wall_point = HOME - arm.surface_below * NORMAL  # the arm's surface, seen from the master
     on = 'true' if passivity else 'false'
     one_way = round_trip_ms / 2e3
     try:
@@ -172,12 +211,9 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
                     ('to_slave.delay', one_way), ('to_master.delay', one_way),
                     ('to_slave.loss', loss), ('to_master.loss', loss)])
             start(slave_host, prefix, slave_domain, 'kraft_master_teleop', [
-                ('passivity', on), *BRIDGE.items()])
+                ('passivity', on), *BRIDGE.items(), *arm.bridge])
             # The arm starts where the master's wrist rests: the bridge registers the two there.
-            start(slave_host, prefix, slave_domain, 'kraft_master_slave_sim', [
-                ('start_position', vector(HOME)), ('box.stiffness', 0.0),
-                ('wall.point', vector(wall_point)), ('wall.normal', vector(NORMAL)),
-                *((name, float(value)) for name, value in SLAVE.items())])
+            start(slave_host, prefix, slave_domain, arm.executable, arm.parameters)
             master = Recorder(master_host, prefix, master_domain,
                               ('master_energy', 'diagnostics'))
             far = Recorder(slave_host, prefix, slave_domain,
@@ -190,18 +226,18 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed):
                                                      'start, or the bridge was not enabled')
                 time.sleep(0.05)
             sampler.start()
-            marks = operate(simulator)
+            marks = operate(simulator, arm.surface_below)
             sampling.set()
             sampler.join()
-            return figures(samples, master.records(), far.records(), marks, wall_point)
+            return figures(samples, master.records(), far.records(), marks, wall_point, arm)
     finally:
         sampling.set()
         simulator.stop()
 
 
-def operate(simulator):
-    """Push the master through the wall, hold, release, rest; return the phases' start times."""
-    home, pushed = joints_to_actuators(HOME_THETA), actuator_target(WALL_BELOW + PAST)
+def operate(simulator, surface_below):
+    """Push the master through the surface, hold, release, rest; return the phases' starts."""
+    home, pushed = joints_to_actuators(HOME_THETA), actuator_target(surface_below + PAST)
     marks = {}
     for phase, start_at, end, seconds in (('push', home, pushed, RAMP),
                                           ('hold', pushed, pushed, HOLD),
@@ -216,7 +252,7 @@ def operate(simulator):
     return marks
 
 
-def figures(samples, master, far, marks, wall_point):
+def figures(samples, master, far, marks, wall_point, arm):
     """Return the row's figures from what was recorded."""
     times = np.array([s[0] for s in samples])
     thetas = np.array([s[1] for s in samples])
@@ -229,12 +265,12 @@ def figures(samples, master, far, marks, wall_point):
         jacobian = kinematics.jacobian(theta, ARM)
         felt.append(np.linalg.lstsq(jacobian[:3, :5].T, joint, rcond=None)[0] @ NORMAL)
     slave_at = np.array([r[1:] for r in far['measured_cp']])
-    slave_depth = float(np.max((wall_point - slave_at) @ NORMAL))
+    slave_depth = float(np.max((arm.surface - slave_at) @ NORMAL))
     slave_force = [np.array(r[1:]) @ NORMAL for r in far['wrench']
                    if marks['release'] - WINDOW <= r[0] < marks['release']]
     energies = (master['master_energy'][-1][1:], far['slave_energy'][-1][1:])
     generated = sum(e[1] for e in energies) - sum(e[0] for e in energies)
-    drift = np.linalg.norm(slave_at[-1] - positions[-1])
+    drift = np.linalg.norm((slave_at[-1] - arm.start) - (positions[-1] - HOME))
     ours = diagnostics_values(master['diagnostics'], marks['hold'])
     theirs = diagnostics_values(far['diagnostics'], marks['hold'])
     force_at_slave = float(np.mean(slave_force)) if slave_force else math.nan

@@ -1,10 +1,11 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-`make demo` as a user runs it, with the point-mass arm (harness/demo.py runs it and records).
+`make demo ARM=point-mass` as a user runs it (harness/demo.py runs it and records).
 
 The contact and the reflected force are checked in the messages themselves as well as in what
-the demo prints; once the demo has exited, no process of its session may be left.
+the demo prints; once the demo has exited, no process of its session may be left. The signal
+tests stop `make demo` as it comes, with its default arm, the MuJoCo Panda.
 """
 import os
 import re
@@ -37,7 +38,7 @@ def seconds(stamp):
 
 
 def test_the_demo_shows_contact_and_reflected_force_and_leaves_nothing(start_demo):
-    demo = start_demo(DURATION)
+    demo = start_demo(DURATION, arm='point-mass')
     code, output = demo.finish()
     assert code == 0, output
     assert not session_processes(demo.process.pid), 'a process of the demo was left behind'

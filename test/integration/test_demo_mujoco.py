@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-`make demo ARM=mujoco` as a user runs it: the demo with the MuJoCo Panda behind the bridge.
+`make demo` as a user runs it: the demo with its default arm, the MuJoCo Panda, behind the bridge.
 
 The simulated operator pushes the master's wrist down; the Panda's hand must come down onto
 its table and the master feel the table's push, in what the demo prints and in the messages
