@@ -19,7 +19,9 @@ Three parts, figures only (no asserts):
   and 30 mm below the table top for 4 s each; the table's force on the hand at the moment of
   the arm's last diagnostics (from the physics' contacts) against the force the master gets
   (the mean of its wrenches stamped in the 50 ms after), and the hand's peak-to-peak over the
-  half second before.
+  half second before. Jumps: the largest step between consecutive servo_cp and measured_cp in
+  the 0.5 s after enable (the master far from the arm) and after a clutch release (the master
+  moved 20 mm while clutched).
 - cost: each process's CPU over the chain part (from /proc), and the arm's real-time factor
   and step CPU from its diagnostics (one value a second: min, median).
 """
@@ -44,13 +46,14 @@ import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from std_msgs.msg import Bool, String  # noqa: E402
 from std_srvs.srv import SetBool  # noqa: E402
 
 BIN = pathlib.Path(sys.executable).parent
 AMPLITUDE = 0.05  # m
 STROKES = (('slow', 0.25), ('fast', 1.0))  # Hz
 DEPTHS = (0.01, 0.02, 0.03)  # m below the table top
+CLUTCH_TRAVEL = 0.02  # m the master moves while clutched
 PERIOD = 0.002  # s between master poses
 # The bridge's input timeouts (s): its default 0.1 s faulted on this 2-core machine loaded about
 # 6 times over its cores, where the arm's physics thread stalled longer (arm_timeout).
@@ -124,6 +127,7 @@ class Master:
             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.pose_pub = self.node.create_publisher(PoseStamped, 'pose', reliable)
+        self.clutch_pub = self.node.create_publisher(Bool, 'clutch', reliable)
         self.enable_client = self.node.create_client(SetBool, 'enable')
         self.master = np.array([0.12, -0.05, 0.2])
         self.sent = collections.deque(maxlen=100000)  # (time, master position)
@@ -204,6 +208,24 @@ def diagnostics_of(master, name):
     return found
 
 
+def largest_step(master, topic, began, ended):
+    """Return (largest distance in m between consecutive poses, count) of `topic` in a span."""
+    points = np.array([position(m) for t, m in list(master.records[topic])
+                       if began <= t <= ended])
+    if len(points) < 2:
+        return math.nan, len(points)
+    return float(np.max(np.linalg.norm(np.diff(points, axis=0), axis=1))), len(points)
+
+
+def print_jump(master, label, began, seconds=0.5):
+    """Print the largest steps of servo_cp and measured_cp in the `seconds` after `began`."""
+    ended = began + seconds
+    (command, commands), (hand, hands) = (largest_step(master, topic, began, ended)
+                                          for topic in ('servo_cp', 'measured_cp'))
+    print(f'{label}: largest step of servo_cp {1e3 * command:.3f} mm ({commands} poses), of '
+          f'the measured hand {1e3 * hand:.3f} mm ({hands} poses) in the {seconds:.1f} s after')
+
+
 def stroke_errors(master, began, ended, registration):
     """Return the errors (m) of measured_cp to the mapped master and to the last servo_cp."""
     master_arm0, master0 = registration
@@ -256,7 +278,10 @@ def chain(seconds_per_depth=4.0):
         wall_start = time.time()
         answer = master.enable()
         print(f'enable: {answer.message}')
+        enabled = time.time()
         master.run(0.5)
+        print_jump(master, 'at enable',
+                   wall_start, enabled - wall_start + 0.5)
         arm0 = position(master.records['measured_cp'][-1][1])
         registration = (arm0, master.master.copy())
         centre = master.master.copy()
@@ -296,6 +321,15 @@ def chain(seconds_per_depth=4.0):
                   f'{felt[2] / arm_force[2]:.3f}; hand p-p {1e3 * np.ptp(heights):.3f} mm')
         master.master = centre
         master.run(1.0)
+        # Clutched, the master moves CLUTCH_TRAVEL along y; released, the arm must not follow
+        # that travel in one jump.
+        master.clutch_pub.publish(Bool(data=True))
+        master.run(0.5, lambda t: centre + (0.0, CLUTCH_TRAVEL * min(t / 0.3, 1.0), 0.0))
+        released = time.time()
+        master.clutch_pub.publish(Bool(data=False))
+        master.run(0.5)
+        print_jump(master, f'at clutch release (the master moved {1e3 * CLUTCH_TRAVEL:.0f} mm '
+                   'while clutched)', released)
         wall = time.time() - wall_start
         cpu = {'arm': cpu_seconds(arm.pid) - cpu_start['arm'],
                'bridge': cpu_seconds(bridge.pid) - cpu_start['bridge'],

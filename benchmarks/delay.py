@@ -38,8 +38,10 @@ def build(workdir):
     return workdir / 'install' / PACKAGE
 
 
-COLUMNS = (('rtt ms', 'round_trip_ms', '{:.0f}'), ('loss %', 'loss_pct', '{:.0f}'),
+COLUMNS = (('past mm', 'past_mm', '{:.0f}'), ('rtt ms', 'round_trip_ms', '{:.0f}'),
+           ('loss %', 'loss_pct', '{:.0f}'),
            ('passivity', 'passivity', '{}'), ('master p-p mm', 'master_pp_mm', '{:.2f}'),
+           ('master past mm', 'master_depth_mm', '{:.2f}'),
            ('slave pen. mm', 'slave_penetration_mm', '{:.2f}'),
            ('channel E J', 'energy_generated_j', '{:+.4f}'),
            ('F slave N', 'force_slave_n', '{:.2f}'), ('F felt N', 'force_felt_n', '{:.2f}'),
@@ -58,6 +60,10 @@ def main(argv=None):
     parser.add_argument('--arm', choices=tuple(session.ARMS), default='point-mass',
                         help='the simulated arm: the point mass and its wall, or the MuJoCo Panda '
                         'and its table')
+    parser.add_argument('--past', type=float, nargs='+', default=[1e3 * session.PAST],
+                        help="how far the operator's hand aims past the arm's surface (mm)")
+    parser.add_argument('--arm-set', nargs='+', default=[], metavar='NAME:=VALUE',
+                        help="parameters of the arm's node, e.g. translational_stiffness:=5000")
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
     args = parser.parse_args(argv)
     modes = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.passivity]
@@ -65,18 +71,21 @@ def main(argv=None):
     with tempfile.TemporaryDirectory(prefix='kmd_delay_') as workdir:
         prefix = build(pathlib.Path(workdir))
         print(' | '.join(title for title, _, _ in COLUMNS), flush=True)
-        for seed, (round_trip, loss, passivity) in enumerate(
-                (r, s, p) for r in args.round_trips for s in args.losses for p in modes):
-            row = {'round_trip_ms': round_trip, 'loss_pct': 100.0 * loss,
+        arm_parameters = [text.split(':=', 1) for text in args.arm_set]
+        for seed, (past, round_trip, loss, passivity) in enumerate(
+                (d, r, s, p) for d in args.past for r in args.round_trips for s in args.losses
+                for p in modes):
+            row = {'past_mm': past, 'round_trip_ms': round_trip, 'loss_pct': 100.0 * loss,
                    'passivity': 'on' if passivity else 'off',
-                   **session.run_row(prefix, round_trip, loss, passivity, seed, args.arm)}
+                   **session.run_row(prefix, round_trip, loss, passivity, seed, args.arm,
+                                     past / 1e3, arm_parameters)}
             rows.append(row)
             print(' | '.join(form.format(row[key]) for _, key, form in COLUMNS), flush=True)
     if args.json:
         args.json.write_text(json.dumps({
-            'machine': platform.node(), 'arm': args.arm, 'slave': session.SLAVE,
-            'bridge': session.BRIDGE,
-            'wall_below_m': session.WALL_BELOW, 'past_m': session.PAST, 'hold_s': session.HOLD,
+            'machine': platform.node(), 'arm': args.arm, 'arm_set': args.arm_set,
+            'slave': session.SLAVE, 'bridge': session.BRIDGE,
+            'wall_below_m': session.WALL_BELOW, 'hold_s': session.HOLD,
             'window_s': session.WINDOW, 'rows': rows}, indent=1))
     return 0
 

@@ -172,8 +172,14 @@ def panda_arm():
 ARMS = {'point-mass': point_mass_arm, 'mujoco': panda_arm}
 
 
-def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass'):
-    """Run one session on two hosts; return its figures (NamespacesRefused if not allowed)."""
+def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past=PAST,
+            arm_parameters=()):
+    """
+    Run one session on two hosts; return its figures (NamespacesRefused if not allowed).
+
+    `past`: m the operator's hand aims past the arm's surface; `arm_parameters`: (name, value)
+    given to the arm's node besides its own.
+    """
     arm = ARMS[arm]()
     simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000, transport='tcp')
     samples = []
@@ -213,7 +219,8 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass'):
             start(slave_host, prefix, slave_domain, 'kraft_master_teleop', [
                 ('passivity', on), *BRIDGE.items(), *arm.bridge])
             # The arm starts where the master's wrist rests: the bridge registers the two there.
-            start(slave_host, prefix, slave_domain, arm.executable, arm.parameters)
+            start(slave_host, prefix, slave_domain, arm.executable,
+                  [*arm.parameters, *arm_parameters])
             master = Recorder(master_host, prefix, master_domain,
                               ('master_energy', 'diagnostics'))
             far = Recorder(slave_host, prefix, slave_domain,
@@ -226,7 +233,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass'):
                                                      'start, or the bridge was not enabled')
                 time.sleep(0.05)
             sampler.start()
-            marks = operate(simulator, arm.surface_below)
+            marks = operate(simulator, arm.surface_below + past)
             sampling.set()
             sampler.join()
             return figures(samples, master.records(), far.records(), marks, wall_point, arm)
@@ -235,9 +242,9 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass'):
         simulator.stop()
 
 
-def operate(simulator, surface_below):
-    """Push the master through the surface, hold, release, rest; return the phases' starts."""
-    home, pushed = joints_to_actuators(HOME_THETA), actuator_target(surface_below + PAST)
+def operate(simulator, depth):
+    """Push the master `depth` m down, hold, release, rest; return the phases' starts."""
+    home, pushed = joints_to_actuators(HOME_THETA), actuator_target(depth)
     marks = {}
     for phase, start_at, end, seconds in (('push', home, pushed, RAMP),
                                           ('hold', pushed, pushed, HOLD),
