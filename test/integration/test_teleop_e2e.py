@@ -311,5 +311,5 @@ def test_pressing_on_the_wall_then_zero_torque_when_the_arm_dies(pressing):
     assert pressing.master_depths()[-1] > 0.0, 'still behind the wall: only the bridge acted'
     # Both of the arm's streams stop: whichever the bridge finds stale first names the fault
     # (killed between its pose and its reading, the arm leaves the reading the older).
-    client.wait(lambda: pressing.states[-1].startswith(('FAULT: measured_cp older',
-                                                         'FAULT: measured_cf older')))
+    stale = ('FAULT: measured_cp older', 'FAULT: measured_cf older')
+    client.wait(lambda: pressing.states[-1].startswith(stale))
