@@ -145,7 +145,8 @@ class Demo:
 
 
 def readouts(output):
-    """Return the piped readouts: (seconds, {line label: numbers}) each.
+    """
+    Return the piped readouts: (seconds, {line label: numbers}) each.
 
     A line's label ends at its first ')'; a reading not there yet (shown as '-') is left out.
     """
