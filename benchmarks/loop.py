@@ -18,7 +18,9 @@ as JSON:
   pseudo-terminal with a process that only answers (machine.bare_pty, at the driver's and the
   simulator's priorities), just before the run: its reply period p99 is the least the
   pseudo-terminal allows the driver's period;
-- cycle period distribution (the joint_states stamps, taken when each pot frame arrived);
+- cycle period distribution: between the commands the device received (the loop as the
+  hardware sees it), and between the joint_states stamps the subscriber received (taken when
+  each pot frame arrived; a message the subscriber lost doubles a gap, so read it with js/s);
 - pot frame at the driver -> joint_states received by the subscriber;
 - wrench published -> the matching torque command received by the device: the publisher
   flips the sign of its moment about z every 20 ms, which flips the sign of the axis-1
@@ -288,7 +290,8 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'bare_pty': pty_floor,
         'late_cycles': int(diagnostics.get('late cycles', -1)),
         'missed_cycles': int(diagnostics.get('missed cycles', -1)),
-        'period_ms': percentiles(np.diff(np.sort(states_window[:, 1])), 1e-6),
+        'period_ms': percentiles(np.diff(device[in_window, 0]), 1e-6),
+        'stamp_period_ms': percentiles(np.diff(np.sort(states_window[:, 1])), 1e-6),
         'pot_frame_to_subscriber_ms': percentiles(states_window[:, 0] - states_window[:, 1],
                                                   1e-6),
         'wrench_to_device_ms': percentiles(
@@ -334,7 +337,7 @@ def fmt(value, digits=3):
 
 def print_table(results):
     print(f'{"run":>21} {"cycles/s":>9} {"bare/s":>7} {"bare pty p99":>12} {"js/s":>7} '
-          f'{"late":>5} {"missed":>6} | '
+          f'{"js p99":>6} {"late":>5} {"missed":>6} | '
           f'period ms: {"med":>6} {"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: '
           f'{"med":>6} {"p99":>6} {"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | '
           f'cpu us/cycle: {"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire | steal')
@@ -348,7 +351,7 @@ def print_table(results):
         bare = '-' if r['bare_loop'] is None else f'{r["bare_loop"]["cycles_per_s"]:.1f}'
         pty = '-' if r.get('bare_pty') is None else f'{r["bare_pty"]["period_ms"]["p99"]:.3f}'
         print(f'{name:>21} {r["cycles_per_s"]:9.1f} {bare:>7} {pty:>12} '
-              f'{r["joint_states_per_s"]:7.1f} '
+              f'{r["joint_states_per_s"]:7.1f} {fmt(r["stamp_period_ms"]["p99"]):>6} '
               f'{r["late_cycles"]:5.0f} '
               f'{r["missed_cycles"]:6.0f} |            {fmt(period["median"]):>6} '
               f'{fmt(period["p99"]):>6} {fmt(period["p99.9"]):>6} {fmt(period["max"]):>6} | '
