@@ -4,7 +4,7 @@
 """
 The MuJoCo Panda behind the bridge: tracking, contact transparency, and what it costs.
 
-Three parts, figures only (no asserts):
+Four parts, figures only (no asserts):
 
 - step: PandaArm.step() in this process (controller and one 1 ms MuJoCo step), in free space
   and pressing on the table, and mujoco.mj_step alone; p50 and p99 in us.
@@ -22,6 +22,12 @@ Three parts, figures only (no asserts):
   half second before. Jumps: the largest step between consecutive servo_cp and measured_cp in
   the 0.5 s after enable (the master far from the arm) and after a clutch release (the master
   moved 20 mm while clutched).
+- port: PandaArm in this process, at the bridge's slave port. The commanded hand height
+  swings PORT_SWING m about PORT_DEPTH m below the table top at 2, 5 and 10 Hz, for each
+  translational stiffness; over PORT_CYCLES cycles, the energy the arm side hands back per
+  cycle (mJ), the table's force on the hand (from the physics' contacts) times the commanded
+  motion (what the slave port books: it pairs the force with servo_cp's motion) and times the
+  hand's own motion (what the table really exchanged). Positive: energy out of the arm side.
 - cost: each process's CPU over the chain part (from /proc), and the arm's real-time factor
   and step CPU from its diagnostics (one value a second: min, median).
 """
@@ -40,7 +46,7 @@ sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
-from kraft_master_driver.simulation.arm_physics import HOME, PandaArm, Table  # noqa: E402
+from kraft_master_driver.simulation.arm_physics import Gains, HOME, PandaArm, Table  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
@@ -62,6 +68,9 @@ TIMEOUT_S = 1.0
 # 50 mm when its physics ran at a real-time factor of 0.3); wider, to measure the lag.
 MAX_TRACKING_ERROR = 0.2
 MAX_FORCE = 40.0  # N: the bridge's default 10 N would clip the deeper presses
+PORT_DEPTH, PORT_SWING, PORT_CYCLES = 0.01, 0.005, 3  # m, m, cycles measured
+PORT_FREQUENCIES = (2.0, 5.0, 10.0)  # Hz
+PORT_STIFFNESSES = (1000.0, 2500.0, 5000.0)  # N/m: the arm node's default up to its largest
 
 
 def percentiles(values, scale=1.0):
@@ -95,6 +104,44 @@ def step_costs(count=5000):
         arm.step()
     assert arm.table_contact_force()[2] > 1.0, 'the hand is not on the table'
     print(f'PandaArm.step, on the table:   {timed(arm.step)} us')
+
+
+def port_energy(stiffness, frequency):
+    """Return the energy (J per cycle) out of the arm side: by the port's books, at the hand."""
+    arm = PandaArm(gains=Gains(translational_stiffness=stiffness))
+    start, quaternion = arm.tool_position(), arm.tool_quaternion()
+    middle = Table().height - PORT_DEPTH
+    target = start.copy()
+    while arm.time < 1.0:  # down onto the table, then settle
+        target[2] = start[2] + (middle - start[2]) * min(1.0, arm.time / 0.5)
+        arm.command_pose(target, quaternion, arm.time)
+        arm.step()
+    began = arm.time
+    booked = exchanged = 0.0
+    commanded, hand = target[2], arm.tool_position()[2]
+    while (elapsed := arm.time - began) < (PORT_CYCLES + 1) / frequency:
+        target[2] = middle + PORT_SWING * math.sin(2.0 * math.pi * frequency * elapsed)
+        arm.command_pose(target, quaternion, arm.time)
+        arm.step()
+        force, now_at = arm.table_contact_force()[2], arm.tool_position()[2]
+        if elapsed >= 1.0 / frequency:  # the first cycle is the swing's start
+            booked += force * (target[2] - commanded)
+            exchanged += force * (now_at - hand)
+        commanded, hand = target[2], now_at
+    return booked / PORT_CYCLES, exchanged / PORT_CYCLES
+
+
+def print_port_energies():
+    """Print port_energy() for each stiffness and frequency."""
+    print(f'the arm at the slave port: commanded hand {1e3 * PORT_DEPTH:g} mm into the table, '
+          f'swinging +-{1e3 * PORT_SWING:g} mm; energy out of the arm side per cycle (mJ), '
+          "by the port's books (force x servo_cp motion) / at the hand (force x hand motion)")
+    for stiffness in PORT_STIFFNESSES:
+        cells = []
+        for frequency in PORT_FREQUENCIES:
+            booked, exchanged = port_energy(stiffness, frequency)
+            cells.append(f'{frequency:g} Hz {1e3 * booked:+8.2f} / {1e3 * exchanged:+7.2f}')
+        print(f'  {stiffness:6.0f} N/m: ' + ' | '.join(cells))
 
 
 def cpu_seconds(pid):
@@ -354,9 +401,9 @@ def chain(seconds_per_depth=4.0):
 def main(argv=None):
     """Run the parts asked for (all by default) and print their figures."""
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
-    parser.add_argument('parts', nargs='*', choices=('step', 'chain', []), default=[])
+    parser.add_argument('parts', nargs='*', choices=('step', 'chain', 'port', []), default=[])
     args = parser.parse_args(argv)
-    parts = args.parts or ['step', 'chain']
+    parts = args.parts or ['step', 'chain', 'port']
     print(f'$ {" ".join(sys.argv)}')
     print('load before: ' + subprocess.run(['uptime'], capture_output=True,
                                            text=True).stdout.strip())
@@ -364,6 +411,8 @@ def main(argv=None):
         step_costs()
     if 'chain' in parts:
         chain()
+    if 'port' in parts:
+        print_port_energies()
     print('load after: ' + subprocess.run(['uptime'], capture_output=True,
                                           text=True).stdout.strip())
     return 0

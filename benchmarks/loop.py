@@ -14,7 +14,13 @@ as JSON:
 - bare/s: the cycles per second a loop that does nothing but sleep to each deadline reaches at
   the same rate, alone, just before the run (machine.bare_loop, at the driver's loop_priority,
   skipping missed periods as the driver does): the most this machine allowed at that moment;
-- cycle period distribution (the joint_states stamps, taken when each pot frame arrived);
+- bare pty: that loop exchanging a command and a reply of the device's sizes over a
+  pseudo-terminal with a process that only answers (machine.bare_pty, at the driver's and the
+  simulator's priorities), just before the run: its reply period p99 is the least the
+  pseudo-terminal allows the driver's period;
+- cycle period distribution: between the commands the device received (the loop as the
+  hardware sees it), and between the joint_states stamps the subscriber received (taken when
+  each pot frame arrived; a message the subscriber lost doubles a gap, so read it with js/s);
 - pot frame at the driver -> joint_states received by the subscriber;
 - wrench published -> the matching torque command received by the device: the publisher
   flips the sign of its moment about z every 20 ms, which flips the sign of the axis-1
@@ -46,7 +52,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
-from machine import bare_loop, cpu_times, steal_fraction  # noqa: E402, I100
+from machine import bare_loop, bare_pty, cpu_times, steal_fraction  # noqa: E402, I100
 
 DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
 DDS_PROFILE = REPO / 'config' / 'fastdds_realtime.xml'
@@ -218,7 +224,13 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
     env = ros_env(domain_id)
     realtime_env = dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(DDS_PROFILE)) if dds_profile \
         else env
-    floor = None if baud else bare_loop(rate_hz, duration, loop_priority(driver_parameters))
+    floor = pty_floor = None
+    if not baud:
+        priority = loop_priority(driver_parameters)
+        floor = bare_loop(rate_hz, duration, priority)
+        codec = get_codec('kraft-default')
+        pty_floor = bare_pty(rate_hz, duration, priority, sim_priority, codec.command_size,
+                             codec.reply_size)
     tag = f'{rate_hz:g}Hz_{baud or "pty"}'
     record = str(workdir / f'device_{tag}.npy')
     sim, port = start_simulator(env, record, baud, sim_priority)
@@ -275,9 +287,11 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'cycles_per_s': cycles / window_s,
         'joint_states_per_s': len(states_window) / window_s,
         'bare_loop': floor,
+        'bare_pty': pty_floor,
         'late_cycles': int(diagnostics.get('late cycles', -1)),
         'missed_cycles': int(diagnostics.get('missed cycles', -1)),
-        'period_ms': percentiles(np.diff(np.sort(states_window[:, 1])), 1e-6),
+        'period_ms': percentiles(np.diff(device[in_window, 0]), 1e-6),
+        'stamp_period_ms': percentiles(np.diff(np.sort(states_window[:, 1])), 1e-6),
         'pot_frame_to_subscriber_ms': percentiles(states_window[:, 0] - states_window[:, 1],
                                                   1e-6),
         'wrench_to_device_ms': percentiles(
@@ -322,7 +336,8 @@ def fmt(value, digits=3):
 
 
 def print_table(results):
-    print(f'{"run":>21} {"cycles/s":>9} {"bare/s":>7} {"js/s":>7} {"late":>5} {"missed":>6} | '
+    print(f'{"run":>21} {"cycles/s":>9} {"bare/s":>7} {"bare pty p99":>12} {"js/s":>7} '
+          f'{"js p99":>6} {"late":>5} {"missed":>6} | '
           f'period ms: {"med":>6} {"p99":>6} {"p99.9":>6} {"max":>6} | pot->sub ms: '
           f'{"med":>6} {"p99":>6} {"max":>6} | wrench->dev ms: {"med":>6} {"p99":>6} {"max":>6} | '
           f'cpu us/cycle: {"link":>5} {"kin":>5} {"pub":>5} {"proc":>6} | of wire | steal')
@@ -334,7 +349,9 @@ def print_table(results):
             name = f'median {name}'
         wire = r.get('achieved_over_wire_limited')
         bare = '-' if r['bare_loop'] is None else f'{r["bare_loop"]["cycles_per_s"]:.1f}'
-        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {bare:>7} {r["joint_states_per_s"]:7.1f} '
+        pty = '-' if r.get('bare_pty') is None else f'{r["bare_pty"]["period_ms"]["p99"]:.3f}'
+        print(f'{name:>21} {r["cycles_per_s"]:9.1f} {bare:>7} {pty:>12} '
+              f'{r["joint_states_per_s"]:7.1f} {fmt(r["stamp_period_ms"]["p99"]):>6} '
               f'{r["late_cycles"]:5.0f} '
               f'{r["missed_cycles"]:6.0f} |            {fmt(period["median"]):>6} '
               f'{fmt(period["p99"]):>6} {fmt(period["p99.9"]):>6} {fmt(period["max"]):>6} | '

@@ -6,6 +6,9 @@ What the machine did during a benchmark run, and what it allows at all.
 cpu_times() and steal_fraction(): the CPU time the hypervisor stole. bare_loop(): a loop that
 does nothing but sleep to each deadline, paced like the driver's, so that the driver's cycle
 rate can be read against the rate this machine gives a do-nothing loop at the same moment.
+bare_pty(): the same loop exchanging a command and a reply of the device's sizes over a
+pseudo-terminal with an echoing process, so that the driver's period can be read against what
+the pseudo-terminal alone allows.
 """
 import argparse
 import json
@@ -14,6 +17,9 @@ import pathlib
 import subprocess
 import sys
 import time
+import tty
+
+import numpy as np
 
 
 def cpu_times():
@@ -27,6 +33,17 @@ def steal_fraction(start, end):
     """Share of all CPU time between two cpu_times() readings that the hypervisor took."""
     total = sum(end.values()) - sum(start.values())
     return (end['steal'] - start['steal']) / total if total else 0.0
+
+
+def _set_fifo(priority):
+    """Run the calling process SCHED_FIFO at `priority` (0 or refused: normal); say which."""
+    if priority:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            return f'SCHED_FIFO {priority}'
+        except OSError:
+            pass
+    return 'normal'
 
 
 def bare_loop(rate_hz, seconds, priority):
@@ -49,13 +66,7 @@ def pace_nothing(rate_hz, seconds, priority):
     up are skipped (missed). Return cycles/s, missed cycles/s, how late each wake-up was
     (median, p99, max, microseconds), the scheduler used and the steal share.
     """
-    scheduler = 'normal'
-    if priority:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            scheduler = f'SCHED_FIFO {priority}'
-        except OSError:
-            pass
+    scheduler = _set_fifo(priority)
     period_ns = round(1e9 / rate_hz)
     lateness = []
     missed = 0
@@ -84,14 +95,94 @@ def pace_nothing(rate_hz, seconds, priority):
     }
 
 
+def bare_pty(rate_hz, seconds, priority, device_priority, command_size, reply_size):
+    """Run pace_pty_exchange() in a child process; return its figures."""
+    output = subprocess.run(
+        [sys.executable, __file__, str(rate_hz), str(seconds), str(priority), '--pty',
+         str(device_priority), str(command_size), str(reply_size)],
+        check=True, capture_output=True, text=True).stdout
+    return json.loads(output)
+
+
+def _read_exactly(fd, size):
+    data = b''
+    while len(data) < size:
+        chunk = os.read(fd, size - len(data))
+        if not chunk:
+            raise EOFError
+        data += chunk
+    return data
+
+
+def pace_pty_exchange(rate_hz, seconds, priority, device_priority, command_size, reply_size):
+    """
+    At each deadline, write a command and read a reply over a raw pseudo-terminal.
+
+    A forked process at `device_priority` answers each command with a reply, as the simulated
+    device does; the loop runs at `priority` with the driver's rule for a late wake-up. Return
+    cycles/s, the period between replies and the round trip (median, p99, max, ms).
+    """
+    device, port = os.openpty()
+    tty.setraw(port)
+    answerer = os.fork()
+    if answerer == 0:
+        os.close(port)
+        _set_fifo(device_priority)
+        try:
+            while True:
+                _read_exactly(device, command_size)
+                os.write(device, bytes(reply_size))
+        except (EOFError, OSError):
+            os._exit(0)
+    os.close(device)
+    scheduler = _set_fifo(priority)
+    period_ns = round(1e9 / rate_hz)
+    replies, round_trips = [], []
+    machine_start = cpu_times()
+    start = deadline = time.monotonic_ns()
+    end = start + round(seconds * 1e9)
+    while deadline < end:
+        deadline += period_ns
+        time.sleep(max(0, deadline - time.monotonic_ns()) / 1e9)
+        sent = time.monotonic_ns()
+        os.write(port, bytes(command_size))
+        _read_exactly(port, reply_size)
+        replies.append(time.monotonic_ns())
+        round_trips.append(replies[-1] - sent)
+        deadline += max(0, (replies[-1] - deadline) // period_ns) * period_ns
+    elapsed = (time.monotonic_ns() - start) / 1e9
+    os.close(port)
+    os.waitpid(answerer, 0)
+    return {
+        'rate_hz': rate_hz,
+        'scheduler': scheduler,
+        'cycles_per_s': len(replies) / elapsed,
+        'period_ms': _percentiles_ms(np.diff(replies)),
+        'round_trip_ms': _percentiles_ms(round_trips),
+        'cpu_steal': steal_fraction(machine_start, cpu_times()),
+    }
+
+
+def _percentiles_ms(values_ns):
+    values = np.sort(np.asarray(values_ns)) / 1e6
+    return {'median': float(values[len(values) // 2]),
+            'p99': float(values[int(0.99 * (len(values) - 1))]), 'max': float(values[-1])}
+
+
 def main():
-    """Print pace_nothing()'s figures as JSON (the child process of bare_loop)."""
+    """Print pace_nothing()'s or pace_pty_exchange()'s figures as JSON (their child process)."""
     parser = argparse.ArgumentParser(description=pace_nothing.__doc__.strip().splitlines()[0])
     parser.add_argument('rate_hz', type=float)
     parser.add_argument('seconds', type=float)
     parser.add_argument('priority', type=int)
+    parser.add_argument('--pty', type=int, nargs=3,
+                        metavar=('DEVICE_PRIORITY', 'COMMAND_SIZE', 'REPLY_SIZE'))
     args = parser.parse_args()
-    print(json.dumps(pace_nothing(args.rate_hz, args.seconds, args.priority)))
+    if args.pty:
+        print(json.dumps(pace_pty_exchange(args.rate_hz, args.seconds, args.priority,
+                                           *args.pty)))
+    else:
+        print(json.dumps(pace_nothing(args.rate_hz, args.seconds, args.priority)))
 
 
 if __name__ == '__main__':

@@ -185,6 +185,9 @@ class Readout:
         pose = self.latest.get('/pose')
         if pose is None or not self.enable_client.service_is_ready():
             return False
+        # Every readout line matched first, so that the wrench shows from the first contact.
+        if not all(s.get_publisher_count() for s in self._subscriptions):
+            return False
         p = pose.pose.position
         if np.linalg.norm(np.array([p.x, p.y, p.z]) - HOME) > ENGAGE_DISTANCE:
             return False

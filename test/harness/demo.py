@@ -145,13 +145,20 @@ class Demo:
 
 
 def readouts(output):
-    """Return the piped readouts: (seconds, {line label: numbers}) each."""
+    """
+    Return the piped readouts: (seconds, {line label: numbers}) each.
+
+    A line's label ends at its first ')'; a reading not there yet (shown as '-') is left out.
+    """
     blocks = []
     for block in re.split(r'\n\n', output):
         match = re.match(r' *([0-9.]+) s \| loop', block)
         if match:
-            rows = {label: [float(v) for v in re.findall(r'-?\d+\.\d+', numbers)]
-                    for label, _, numbers in (line.partition('  ')
-                                              for line in block.splitlines()[1:])}
+            rows = {}
+            for line in block.splitlines()[1:]:
+                label, parenthesis, numbers = line.partition(')')
+                values = [float(v) for v in re.findall(r'-?\d+\.\d+', numbers)]
+                if parenthesis and values:
+                    rows[label + parenthesis] = values
             blocks.append((float(match.group(1)), rows))
     return blocks
