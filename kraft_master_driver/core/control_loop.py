@@ -58,6 +58,8 @@ class ControlLoop:
     take_inputs(): called before each send, to hand the wrenches that came to `force`.
     log: a logger with info, warning and error(message, throttle_duration_sec=...), as an
     rclpy logger. clock: SystemClock, or a stand-in with the same three functions.
+    priority: the loop thread's SCHED_FIFO priority (0: normal). executor_thread: the native id
+    of the thread that spins the node's executor; granted FIFO, the loop runs it one below.
 
     run() cycles in the calling thread until stop() is called or keep_running() is false.
     centre (a 4x4 0T6 array, or None) and publish_decimation may be set from other threads.
@@ -65,7 +67,8 @@ class ControlLoop:
 
     def __init__(self, device, force, publish, *, calibration, arm, lengths, velocity,
                  master_port, log, rate_hz, take_inputs=lambda: None, publish_decimation=1,
-                 priority=0, clock=SystemClock, keep_running=lambda: True):
+                 priority=0, executor_thread=None, clock=SystemClock,
+                 keep_running=lambda: True):
         """Wire the parts together; nothing runs until run()."""
         self.device = device
         self.force = force
@@ -80,10 +83,12 @@ class ControlLoop:
         self.take_inputs = take_inputs
         self.publish_decimation = publish_decimation
         self.priority = priority
+        self.executor_thread = executor_thread
         self.statistics = LoopStatistics()
         self.clock = clock
         self.keep_running = keep_running
         self.scheduler = 'normal'
+        self.executor_scheduler = 'normal'
         self.memory_lock = 'not locked (loop_priority 0)'
         self.centre = None
         self.output = None  # the TorqueOutput of the last send, None without an estimate
@@ -136,6 +141,13 @@ class ControlLoop:
                 'silence this)')
             return
         self.scheduler = f'SCHED_FIFO {priority}'
+        if self.executor_thread is not None:
+            # The executor's thread shares the interpreter lock with this one. At normal
+            # priority, preempted by other work while it holds the lock, it stalls the loop.
+            below = max(1, priority - 1)
+            refused = realtime.set_fifo_priority(below, self.executor_thread)
+            self.executor_scheduler = (f'SCHED_FIFO {below}' if refused is None
+                                       else f'normal ({refused})')
         refused = realtime.lock_memory()
         self.memory_lock = 'locked' if refused is None else f'not locked ({refused})'
         if refused:

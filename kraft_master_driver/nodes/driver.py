@@ -113,7 +113,8 @@ class KraftMasterNode(Node):
             velocity=self.velocity, master_port=self.master_port, log=self.get_logger(),
             rate_hz=self.config['loop_rate_hz'], take_inputs=self.inputs.take,
             publish_decimation=self.config['publish_decimation'],
-            priority=self.config['loop_priority'], keep_running=self.context.ok)
+            priority=self.config['loop_priority'], executor_thread=threading.get_native_id(),
+            keep_running=self.context.ok)
         # Not a daemon: the interpreter waits for the loop to zero the torques on its way out.
         self._thread = threading.Thread(target=self.loop.run, name='kraft_master_loop')
         self._thread.start()
@@ -226,6 +227,7 @@ class KraftMasterNode(Node):
         inputs, output = self.inputs, self.loop.output
         level, message, values = driver_diagnostics.driver_diagnostics(DriverReadings(
             statistics=self.loop.statistics, scheduler=self.loop.scheduler,
+            executor_scheduler=self.loop.executor_scheduler,
             memory_lock=self.loop.memory_lock, device_stats=device_stats,
             link_state=None if self.device.link_up else self.loop.link_state(),
             force=self.force, force_state=output.state if output else None,

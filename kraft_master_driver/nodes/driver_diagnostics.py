@@ -28,6 +28,7 @@ class DriverReadings(NamedTuple):
     slave_energy: tuple  # the slave's energy in, out, dissipated (J), as last received
     slave_link: tuple  # passivity.LinkMonitor.summary() of slave_energy, or None
     memory_lock: str = 'not locked'  # whether the loop's memory lock was granted, and why not
+    executor_scheduler: str = 'normal'  # the executor thread's scheduling, as the loop set it
 
 
 def milliseconds(name, median_p99_max):
@@ -52,6 +53,7 @@ def driver_diagnostics(readings):
            for phase, seconds in statistics.cpu_per_cycle().items()},
         'internal errors': str(statistics.internal_errors),
         'loop scheduler': readings.scheduler,
+        'executor scheduler': readings.executor_scheduler,
         'memory lock': readings.memory_lock,
         'force output': 'enabled' if force.enabled else 'disabled',
         'force state': readings.force_state or 'no_state',

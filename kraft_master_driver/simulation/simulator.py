@@ -29,7 +29,7 @@ import sys
 import threading
 import time
 
-from kraft_master_driver.core import kinematics
+from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.core.process import stop_with_parent
 from kraft_master_driver.link.protocol import (
@@ -340,9 +340,13 @@ def main(argv=None):
     stop_with_parent()
     try:
         with simulator:
-            print(f'port: {simulator.port}', flush=True)
             if simulator.priority_error:
                 print(f'kraft_master_sim: warning: {simulator.priority_error}', file=sys.stderr)
+            elif args.priority:
+                # This thread wakes to look for a stop and shares the interpreter lock with the
+                # serving thread: preempted while holding it, it would hold up a reply.
+                realtime.set_fifo_priority(max(1, args.priority - 1))
+            print(f'port: {simulator.port}', flush=True)
             gc.freeze()  # no full garbage collection passes over the set-up (parameters.run_node)
             while not stop:
                 time.sleep(0.5)

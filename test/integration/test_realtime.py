@@ -17,11 +17,14 @@ WRENCH = (0.0, 0.0, 4.0, 0.0, 0.0, 0.0)
 
 def threads_of(pid):
     """Return (name, policy, rt_priority) of each thread of process pid (Linux /proc)."""
-    found = []
-    for task in pathlib.Path(f'/proc/{pid}/task').iterdir():
-        fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
-        found.append(((task / 'comm').read_text().strip(), int(fields[38]), int(fields[37])))
-    return found
+    return [thread_of(pid, task.name) for task in pathlib.Path(f'/proc/{pid}/task').iterdir()]
+
+
+def thread_of(pid, tid):
+    """Return (name, policy, rt_priority) of thread tid of process pid (Linux /proc)."""
+    task = pathlib.Path(f'/proc/{pid}/task/{tid}')
+    fields = (task / 'stat').read_text().rsplit(')', 1)[1].split()
+    return (task / 'comm').read_text().strip(), int(fields[38]), int(fields[37])
 
 
 def locked_kib(pid):
@@ -54,6 +57,8 @@ def test_the_built_in_simulator_runs_at_the_loop_priority_and_memory_is_locked(i
         # The loop thread and the simulated device's serving thread, which stands in for
         # hardware that answers by itself.
         assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == 2, threads
+        # The executor's thread (the main one), which shares the interpreter lock with the loop.
+        assert thread_of(driver.process.pid, driver.process.pid)[1:] == (os.SCHED_FIFO, 29)
         assert locked_kib(driver.process.pid) > 0
         code, output = driver.interrupt()
         assert code == 0, output

@@ -49,12 +49,15 @@ def test_a_running_driver_is_ok_with_its_figures_as_text():
     assert values['cpu per cycle publish (us)'] == '10.0'
     assert values['internal errors'] == '0'
     assert values['loop scheduler'] == 'SCHED_FIFO 50'
+    assert values['executor scheduler'] == 'normal'
     assert values['force output'] == 'enabled' and values['force state'] == 'active'
     assert values['wrench sources'] == '1'
     assert values['calibration'] == 'parameters' and values['port'] == 'sim'
     assert values['link cycles'] == '5' and values['link timeouts'] == '1'
     assert values['force watchdog_trips'] == '0' and values['force rejected_malformed'] == '0'
     assert all(isinstance(value, str) for value in values.values())
+    values = driver_diagnostics(readings(executor_scheduler='SCHED_FIFO 49'))[2]
+    assert values['executor scheduler'] == 'SCHED_FIFO 49'
 
 
 def test_the_channel_energies_and_passivity():

@@ -2,6 +2,7 @@
 # Licensed under the Apache License, Version 2.0
 """The simulated hand controller, driven as a host would: real bytes over a real pty."""
 import os
+import pathlib
 import select
 import shutil
 import signal
@@ -555,6 +556,32 @@ def test_priority_runs_the_serving_thread_sched_fifo():
             assert host.exchange() is not None
         finally:
             host.close()
+
+
+def test_cli_runs_its_main_thread_one_below_the_serving_thread():
+    process = subprocess.Popen(
+        [sys.executable, '-m', 'kraft_master_driver.simulation.simulator', '--priority', '20'],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1'))
+    try:
+        host = Host(read_port_line(process))
+        try:
+            assert host.exchange() is not None
+            priorities = {int(task.name): os.sched_getparam(int(task.name)).sched_priority
+                          for task in pathlib.Path(f'/proc/{process.pid}/task').iterdir()}
+        finally:
+            host.close()
+        # The main thread looks for a stop and shares the interpreter lock with the serving
+        # thread: preempted while holding it, at normal priority, it would hold up replies.
+        assert priorities[process.pid] == 19
+        assert 20 in priorities.values()
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 0
+    finally:
+        process.kill()
+        process.wait()
+        process.stdout.close()
+        process.stderr.close()
 
 
 def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
