@@ -58,30 +58,55 @@ def bare_loop(rate_hz, seconds, priority):
     return json.loads(output)
 
 
+class Pacer:
+    """
+    Deadlines `1 / rate_hz` apart for `seconds`, each slept to, with the driver's rule.
+
+    As the driver's loop: a late cycle runs at once, and skip_to() skips the whole periods that
+    cannot be caught up.
+    """
+
+    def __init__(self, rate_hz, seconds):
+        """Start now."""
+        self.period_ns = round(1e9 / rate_hz)
+        self.start = self.deadline = time.monotonic_ns()
+        self.end = self.start + round(seconds * 1e9)
+
+    def __iter__(self):
+        """Sleep to each deadline in turn; yield it."""
+        while self.deadline < self.end:
+            self.deadline += self.period_ns
+            time.sleep(max(0, self.deadline - time.monotonic_ns()) / 1e9)
+            yield self.deadline
+
+    def skip_to(self, now):
+        """Skip the whole periods that passed between the deadline and `now`; return how many."""
+        skipped = max(0, (now - self.deadline) // self.period_ns)
+        self.deadline += skipped * self.period_ns
+        return skipped
+
+    def elapsed_s(self):
+        """Return the seconds since the start."""
+        return (time.monotonic_ns() - self.start) / 1e9
+
+
 def pace_nothing(rate_hz, seconds, priority):
     """
-    Sleep to each deadline for `seconds`, with the driver's rule for a late wake-up.
+    Sleep to each deadline for `seconds`, with the driver's rule for a late wake-up (Pacer).
 
-    As the driver's loop: a late cycle runs at once and whole periods that cannot be caught
-    up are skipped (missed). Return cycles/s, missed cycles/s, how late each wake-up was
-    (median, p99, max, microseconds), the scheduler used and the steal share.
+    Return cycles/s, missed cycles/s, how late each wake-up was (median, p99, max,
+    microseconds), the scheduler used and the steal share.
     """
     scheduler = _set_fifo(priority)
-    period_ns = round(1e9 / rate_hz)
     lateness = []
     missed = 0
     machine_start = cpu_times()
-    start = deadline = time.monotonic_ns()
-    end = start + round(seconds * 1e9)
-    while deadline < end:
-        deadline += period_ns
-        time.sleep(max(0, deadline - time.monotonic_ns()) / 1e9)
+    pacer = Pacer(rate_hz, seconds)
+    for deadline in pacer:
         now = time.monotonic_ns()
         lateness.append(now - deadline)
-        skipped = (now - deadline) // period_ns
-        missed += skipped
-        deadline += skipped * period_ns
-    elapsed = (time.monotonic_ns() - start) / 1e9
+        missed += pacer.skip_to(now)
+    elapsed = pacer.elapsed_s()
     lateness.sort()
     return {
         'rate_hz': rate_hz,
@@ -136,21 +161,17 @@ def pace_pty_exchange(rate_hz, seconds, priority, device_priority, command_size,
             os._exit(0)
     os.close(device)
     scheduler = _set_fifo(priority)
-    period_ns = round(1e9 / rate_hz)
     replies, round_trips = [], []
     machine_start = cpu_times()
-    start = deadline = time.monotonic_ns()
-    end = start + round(seconds * 1e9)
-    while deadline < end:
-        deadline += period_ns
-        time.sleep(max(0, deadline - time.monotonic_ns()) / 1e9)
+    pacer = Pacer(rate_hz, seconds)
+    for _deadline in pacer:
         sent = time.monotonic_ns()
         os.write(port, bytes(command_size))
         _read_exactly(port, reply_size)
         replies.append(time.monotonic_ns())
         round_trips.append(replies[-1] - sent)
-        deadline += max(0, (replies[-1] - deadline) // period_ns) * period_ns
-    elapsed = (time.monotonic_ns() - start) / 1e9
+        pacer.skip_to(replies[-1])
+    elapsed = pacer.elapsed_s()
     os.close(port)
     os.waitpid(answerer, 0)
     return {

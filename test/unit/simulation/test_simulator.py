@@ -1,6 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """The simulated hand controller, driven as a host would: real bytes over a real pty."""
+import contextlib
 import os
 import pathlib
 import select
@@ -469,12 +470,20 @@ def test_bad_options_are_refused_by_name(options, message):
         SimulatedKraftMaster(**options)
 
 
-def start_cli(*arguments):
-    """Start the simulator CLI as a subprocess of this Python; return it."""
+@contextlib.contextmanager
+def running_cli(*arguments, wrapper=()):
+    """Run the simulator CLI as a subprocess of this Python; kill it and close its pipes after."""
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1')
-    return subprocess.Popen(
-        [sys.executable, '-m', 'kraft_master_driver.simulation.simulator', *arguments],
+    process = subprocess.Popen(
+        [*wrapper, sys.executable, '-m', 'kraft_master_driver.simulation.simulator', *arguments],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    try:
+        yield process
+    finally:
+        process.kill()
+        process.wait()
+        process.stdout.close()
+        process.stderr.close()
 
 
 def read_port_line(process, timeout=30.0):
@@ -490,9 +499,8 @@ def read_port_line(process, timeout=30.0):
 
 @pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
-    process = start_cli('--operator', 'sweep', '--noise', '1',
-                        '--calibration', str(REPO / 'config' / 'left_arm.yaml'))
-    try:
+    with running_cli('--operator', 'sweep', '--noise', '1',
+                     '--calibration', str(REPO / 'config' / 'left_arm.yaml')) as process:
         path = read_port_line(process)
         host = Host(path)
         try:
@@ -503,16 +511,10 @@ def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
         process.send_signal(signum)
         assert process.wait(timeout=20) == 0
         assert not os.path.exists(os.path.dirname(path))
-    finally:
-        process.kill()
-        process.wait()
-        process.stdout.close()
-        process.stderr.close()
 
 
 def test_cli_serves_tcp_to_the_driver_device_code():
-    process = start_cli('--tcp')
-    try:
+    with running_cli('--tcp') as process:
         url = read_port_line(process)
         assert url.startswith('socket://127.0.0.1:')
         with KmcDevice(url) as device:
@@ -520,27 +522,16 @@ def test_cli_serves_tcp_to_the_driver_device_code():
         assert all(result is not None for result in results)
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=20) == 0
-    finally:
-        process.kill()
-        process.wait()
-        process.stdout.close()
-        process.stderr.close()
 
 
 def test_a_killed_simulator_leaves_a_dangling_link():
-    process = start_cli()
-    try:
+    with running_cli() as process:
         path = read_port_line(process)
         assert os.path.realpath(path).startswith('/dev/pts/')
         process.kill()
         process.wait(timeout=20)
         # A stale link must not lead a reconnecting driver to another process's pty.
         assert os.path.lexists(path) and not os.path.exists(path)
-    finally:
-        process.kill()
-        process.wait()
-        process.stdout.close()
-        process.stderr.close()
     shutil.rmtree(os.path.dirname(path))
 
 
@@ -559,11 +550,7 @@ def test_priority_runs_the_serving_thread_sched_fifo():
 
 
 def test_cli_runs_its_main_thread_one_below_the_serving_thread():
-    process = subprocess.Popen(
-        [sys.executable, '-m', 'kraft_master_driver.simulation.simulator', '--priority', '20'],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
-        env=dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1'))
-    try:
+    with running_cli('--priority', '20') as process:
         host = Host(read_port_line(process))
         try:
             assert host.exchange() is not None
@@ -577,20 +564,11 @@ def test_cli_runs_its_main_thread_one_below_the_serving_thread():
         assert 20 in priorities.values()
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=20) == 0
-    finally:
-        process.kill()
-        process.wait()
-        process.stdout.close()
-        process.stderr.close()
 
 
 def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
-    process = subprocess.Popen(
-        ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice',
-         sys.executable, '-m', 'kraft_master_driver.simulation.simulator', '--priority', '20'],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
-        env=dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1'))
-    try:
+    without_sys_nice = ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice']
+    with running_cli('--priority', '20', wrapper=without_sys_nice) as process:
         host = Host(read_port_line(process))
         try:
             assert host.exchange() is not None
@@ -599,11 +577,6 @@ def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=20) == 0
         assert 'warning: SCHED_FIFO 20 refused' in process.stderr.read()
-    finally:
-        process.kill()
-        process.wait()
-        process.stdout.close()
-        process.stderr.close()
 
 
 def test_cli_refuses_an_unreadable_calibration():
