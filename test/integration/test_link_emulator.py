@@ -60,11 +60,11 @@ class Side:
             pass
 
     def close(self):
-        """Leave the domain."""
+        """Leave the domain: the spinning thread ends before the node it spins is destroyed."""
         self.executor.shutdown()
+        self.thread.join(timeout=5.0)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=5.0)
 
 
 class Arrivals:
