@@ -1,12 +1,13 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-A stand-in for the slave's machine, run as a process on the far host by the two-host tests.
+An observer on the arm's host, run as a process there by the two-host tests.
 
-It waits for the driver's `pose` (printing `pose <count> <min one-way delay s>` once it has
-`--poses` of them), then publishes `--wrench` on `wrench` every 5 ms until the driver's
-`joint_states` carry a torque, and prints `effort <six torques>`. Exit 0 on success, 1 (with
-`timeout: ...`) when either does not happen within `--timeout` s.
+Beside the bridge and the simulated arm, it waits for `--poses` of the driver's `pose`, then
+for the bridge's `wrench` and for the driver's `joint_states` to carry a torque. It prints
+`pose <count> <min one-way delay s>`, `wrench <force x y z of the last one>` and
+`effort <six torques>`. Exit 0 on success, 1 (with `timeout: ...`) when any of them does not
+come within `--timeout` s. It publishes nothing.
 """
 import argparse
 import sys
@@ -19,10 +20,8 @@ from sensor_msgs.msg import JointState
 
 
 def main():
-    """Run the probe; return the exit code."""
+    """Run the observer; return the exit code."""
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument('--wrench', type=float, nargs=6, required=True)
-    parser.add_argument('--frame', default='kraft_master_base')
     parser.add_argument('--poses', type=int, default=50)
     parser.add_argument('--timeout', type=float, default=60.0)
     args = parser.parse_args()
@@ -30,34 +29,32 @@ def main():
     node = rclpy.create_node('remote_probe')
     clock = node.get_clock()
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    delays, efforts = [], []
+    delays, wrenches, efforts = [], [], []
 
     def on_pose(msg):
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         delays.append(clock.now().nanoseconds * 1e-9 - stamp)
 
+    def on_wrench(msg):
+        force = msg.wrench.force
+        wrenches.append((force.x, force.y, force.z))
+
     node.create_subscription(PoseStamped, 'pose', on_pose, reliable)
+    node.create_subscription(WrenchStamped, 'wrench', on_wrench, reliable)
     node.create_subscription(JointState, 'joint_states',
                              lambda msg: efforts.append(list(msg.effort)), reliable)
-    wrench_pub = node.create_publisher(WrenchStamped, 'wrench', reliable)
     deadline = time.monotonic() + args.timeout
-    while len(delays) < args.poses:
-        if time.monotonic() > deadline:
-            print(f'timeout: {len(delays)} poses arrived', flush=True)
-            return 1
-        rclpy.spin_once(node, timeout_sec=0.05)
+    waits = (('poses', lambda: len(delays) >= args.poses),
+             ('a wrench from the bridge', lambda: wrenches and any(wrenches[-1])),
+             ('a torque in joint_states', lambda: efforts and any(efforts[-1])))
+    for awaited, arrived in waits:
+        while not arrived():
+            if time.monotonic() > deadline:
+                print(f'timeout: waiting for {awaited}; {len(delays)} poses arrived', flush=True)
+                return 1
+            rclpy.spin_once(node, timeout_sec=0.05)
     print(f'pose {len(delays)} {min(delays):.6f}', flush=True)
-    msg = WrenchStamped()
-    msg.header.frame_id = args.frame
-    f, m = msg.wrench.force, msg.wrench.torque
-    f.x, f.y, f.z, m.x, m.y, m.z = args.wrench
-    while not (efforts and any(efforts[-1])):
-        if time.monotonic() > deadline:
-            print('timeout: no torque in joint_states', flush=True)
-            return 1
-        msg.header.stamp = clock.now().to_msg()
-        wrench_pub.publish(msg)
-        rclpy.spin_once(node, timeout_sec=0.005)
+    print('wrench ' + ' '.join(f'{value:.6f}' for value in wrenches[-1]), flush=True)
     print('effort ' + ' '.join(f'{value:.6f}' for value in efforts[-1]), flush=True)
     node.destroy_node()
     rclpy.try_shutdown()

@@ -1,19 +1,33 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""Master and slave on two hosts (network namespaces joined by a veth pair), as on two machines."""
+"""
+Master and arm on two hosts (network namespaces joined by a veth pair), as on two machines.
+
+The driver on its simulated device on one host; on the other the bridge (enabled at start),
+the simulated arm behind it, started inside its soft box so that the box pushes its tool up from
+the first command, and an observer (harness/remote_probe.py).
+"""
 import pathlib
 import signal
 import subprocess
 import sys
+import time
 
 from harness import dds_shm, REPO
-from harness.driver import executable, installed_env, next_domain_id
+from harness.driver import executable, installed_env, next_domain_id, vector_parameter
 from harness.netns import namespaces_of_this_process, NamespacesRefused, TwoHosts
+from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
 import pytest
 
 TESTS = REPO / 'test'  # the directory of the harness package, on the tests' path
 PROBE = TESTS / 'harness' / 'remote_probe.py'
-WRENCH = ('3.0', '-2.0', '4.0', '0.05', '-0.1', '0.08')
+# The arm's tool starts at the centre of its soft box, which pushes it up (+z) out of the
+# nearest face harder than its servo holds it back: a steady contact force from the start.
+ARM = [('start_position', vector_parameter(ARM_PARAMETERS['box.centre'][0]))]
+# Enabled at start, with the master where it rests; timeouts that a loaded machine's stalls
+# across the veth do not trip (a stale F/T reading is a FAULT, which zeroes the wrench).
+BRIDGE = [('enable_at_start', 'true'), ('master_timeout', 2.0), ('arm_timeout', 2.0),
+          ('ft_timeout', 2.0)]
 
 
 def listed_namespaces():
@@ -46,37 +60,57 @@ def start(host, prefix, domain_id, name, parameters):
                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
+def start_arm_side(host, prefix, domain_id):
+    """Start the bridge and the simulated arm in `host`; return the two processes."""
+    return (start(host, prefix, domain_id, 'kraft_master_teleop', BRIDGE),
+            start(host, prefix, domain_id, 'kraft_master_slave_sim', ARM))
+
+
 def probe(host, prefix, domain_id):
-    """Run remote_probe.py in `host` to its end; return {'pose': [...], 'effort': [...]}."""
+    """Run remote_probe.py in `host` to its end; return {'pose', 'wrench', 'effort': [...]}."""
     result = host.run(
-        [sys.executable, PROBE, '--wrench', *WRENCH, '--timeout', '90'],
+        [sys.executable, PROBE, '--timeout', '90'],
         env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
         capture_output=True, text=True, timeout=150)
     assert result.returncode == 0, result.stdout + result.stderr
     lines = dict(line.split(' ', 1) for line in result.stdout.splitlines() if ' ' in line)
-    return {key: [float(v) for v in lines[key].split()] for key in ('pose', 'effort')}
+    return {key: [float(v) for v in lines[key].split()]
+            for key in ('pose', 'wrench', 'effort')}
 
 
-def driver_output(process):
-    """Stop a started process and return its output, for a failing assertion's message."""
-    dds_shm.end(process)
-    return process.communicate(timeout=10)[0]
+def outputs(processes):
+    """Stop started processes and return their output, for a failing assertion's message."""
+    texts = []
+    for name, process in processes.items():
+        dds_shm.end(process)
+        texts.append(f'{name}:\n{process.communicate(timeout=10)[0]}')
+    return '\n'.join(texts)
 
 
-def test_driver_and_slave_on_two_hosts_exchange_pose_and_wrench_across_the_veth(
+def assert_the_box_pushes_the_master(seen):
+    """Assert the bridge reflected the box's upward push and the driver turned it to torques."""
+    force_x, force_y, force_z = seen['wrench']
+    assert force_z > 1.0 and abs(force_x) + abs(force_y) < 0.1 * force_z, seen['wrench']
+    assert any(abs(value) > 1e-3 for value in seen['effort'])
+
+
+def test_driver_and_bridge_on_two_hosts_exchange_pose_and_wrench_across_the_veth(
         hosts, install_prefix):
     master, slave = hosts
     domain_id = next_domain_id()
     driver = start(master, install_prefix, domain_id, 'kraft_master_node',
                    [('port', 'sim'), ('force_enabled_at_start', 'true')])
+    bridge, arm = start_arm_side(slave, install_prefix, domain_id)
     before = master.link_counters()
     try:
         seen = probe(slave, install_prefix, domain_id)
     except AssertionError as error:
-        raise AssertionError(f'{error}\ndriver:\n{driver_output(driver)}') from None
+        started = {'driver': driver, 'bridge': bridge, 'arm': arm}
+        raise AssertionError(f'{error}\n{outputs(started)}') from None
     after = master.link_counters()
     assert seen['pose'][0] >= 50
-    assert any(abs(value) > 1e-3 for value in seen['effort'])
+    print(seen)
+    assert_the_box_pushes_the_master(seen)
     # The 50 poses (about 100 bytes each) left host a on its veth, the wrenches came in on it.
     assert after[1] - before[1] > 50 * 100 and after[0] > before[0]
     assert driver.poll() is None
@@ -92,13 +126,16 @@ def test_link_emulator_between_the_hosts_delays_the_pose(hosts, install_prefix):
                       ('to_master.delay', 0.03),
                       # The probe reads the torques the driver reports: relay them too.
                       ('to_slave.topics', "['pose', 'joint_states']")])
+    bridge, arm = start_arm_side(slave, install_prefix, slave_domain)
     try:
         seen = probe(slave, install_prefix, slave_domain)
     except AssertionError as error:
-        raise AssertionError(f'{error}\nemulator:\n{driver_output(emulator)}') from None
-    # Never earlier than the emulated delay; the wrench crossed back to the driver.
+        started = {'emulator': emulator, 'bridge': bridge, 'arm': arm}
+        raise AssertionError(f'{error}\n{outputs(started)}') from None
+    # Never earlier than the emulated delay; the bridge's wrench crossed back to the driver.
     assert seen['pose'][1] > 0.05
-    assert any(abs(value) > 1e-3 for value in seen['effort'])
+    print(seen)
+    assert_the_box_pushes_the_master(seen)
     emulator.send_signal(signal.SIGINT)
     output = emulator.communicate(timeout=30)[0]
     assert emulator.returncode == 0, output
@@ -135,8 +172,12 @@ def test_a_terminated_run_deletes_its_namespaces_and_processes():
             pytest.skip(error.strip().splitlines()[-1])
         raise AssertionError(error)
     assert set(names) <= listed_namespaces()
-    sleeper = subprocess.run(['ip', 'netns', 'pids', names[0]], capture_output=True,
-                             text=True).stdout.split()
+    # `ip netns exec` enters the namespace some time after the run printed the names.
+    deadline = time.monotonic() + 30.0
+    sleeper = []
+    while not sleeper and time.monotonic() < deadline:
+        sleeper = subprocess.run(['ip', 'netns', 'pids', names[0]], capture_output=True,
+                                 text=True).stdout.split()
     assert sleeper
     run.send_signal(signal.SIGTERM)
     run.communicate(timeout=60)
