@@ -24,7 +24,8 @@ as JSON:
 - pot frame at the driver -> joint_states received by the subscriber;
 - wrench published -> the matching torque command received by the device: the publisher
   flips the sign of its moment about z every 20 ms, which flips the sign of the axis-1
-  command (tau1 = mz), and each flip is matched with the first command of the new sign; for
+  command (tau1 = mz), and each flip of the measured window from the first command that
+  carried a torque is matched with the first command of the new sign; for
   the flips slower than 20 ms (one never applied waits for the next of its sign), the share of
   the commands meanwhile that were zero or still of the old sign, the longest gap between
   them, and the driver's counters of zeroed wrenches;
@@ -223,7 +224,7 @@ def wrench_latencies(flips, commands):
 
 def slow_flips(flips, commands):
     """
-    What the device got while each flip slower than FLIP_PERIOD_S was on its way.
+    Return what the device got while each flip slower than FLIP_PERIOD_S was on its way.
 
     A flip is matched with the first command of its sign, so one never applied waits for the
     next flip of that sign: its latency is a multiple of the flip period. Returns the count of
@@ -279,6 +280,10 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
                               env=realtime_env, stdout=subprocess.DEVNULL)
     subscriber_out = str(workdir / f'subscriber_{tag}')
     publisher_out = str(workdir / f'publisher_{tag}.npy')
+    # A repeated run's peers signal readiness anew: the last run's files would end the wait
+    # at once, and the measured window would begin before the peers run.
+    for ready in (subscriber_out + '.ready', publisher_out + '.ready'):
+        pathlib.Path(ready).unlink(missing_ok=True)
     peers = [subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
                                '--duration', str(duration), '--publisher-priority',
                                str(publisher_priority)], env=role_env)
@@ -314,6 +319,13 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
     states_window = states[(states[:, 1] >= wall_start) & (states[:, 1] < wall_end)]
     window_s = (wall_end - wall_start) / 1e9
     cycles = int(in_window.sum())
+    # The flips of the measured window (not the last 0.1 s, whose match may come after it),
+    # from the first command that carried a torque: the publisher starts once it has matched
+    # the driver's subscription, and the driver's reader may match it later.
+    in_window_flips = flips[(flips[:, 0] >= wall_start) & (flips[:, 0] < wall_end - 1e8)]
+    torques = device[device[:, 1] != 0.0, 0]
+    first_torque_ns = torques[0] if torques.size else np.inf
+    measured_flips = in_window_flips[in_window_flips[:, 0] >= first_torque_ns]
     figures = {
         'loop_rate_hz': rate_hz,
         'baud': baud,
@@ -329,8 +341,9 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'pot_frame_to_subscriber_ms': percentiles(states_window[:, 0] - states_window[:, 1],
                                                   1e-6),
         'wrench_to_device_ms': percentiles(
-            wrench_latencies(flips[flips[:, 0] < wall_end - 1e8], device), 1e3),
-        'slow_flips': slow_flips(flips[flips[:, 0] < wall_end - 1e8], device),
+            wrench_latencies(measured_flips, device), 1e3),
+        'slow_flips': slow_flips(measured_flips, device),
+        'flips_before_first_torque': int(np.sum(in_window_flips[:, 0] < first_torque_ns)),
         'wrench_zeroed': {key: int(diagnostics.get(f'force {key}', -1))
                           for key in ('watchdog_trips', 'age_expiries', 'rejected_too_old')},
         'cpu_steal': steal,
