@@ -36,6 +36,23 @@ def locked_kib(pid):
     raise AssertionError(f'no VmLck in /proc/{pid}/status')
 
 
+def assert_real_time_at_30(process, threads_at_30):
+    """
+    Assert `threads_at_30` threads of `process` at SCHED_FIFO 30, and its main thread at 29.
+
+    The main thread spins the executor, which shares the interpreter lock with the real-time
+    threads. Also asserted: memory locked, and a clean exit at Ctrl-C without a refusal.
+    """
+    pid = process.process.pid
+    threads = threads_of(pid)
+    assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == threads_at_30, threads
+    assert thread_of(pid, pid)[1:] == (os.SCHED_FIFO, 29)
+    assert locked_kib(pid) > 0
+    code, output = process.interrupt()
+    assert code == 0, output
+    assert 'refused' not in output
+
+
 def start(install_prefix, parameters, wrapper=()):
     """Start the installed driver on its built-in simulator; return (driver, client)."""
     domain_id = next_domain_id()
@@ -54,16 +71,9 @@ def start(install_prefix, parameters, wrapper=()):
 def test_the_built_in_simulator_runs_at_the_loop_priority_and_memory_is_locked(install_prefix):
     driver, client = start(install_prefix, [('loop_priority', '30')])
     try:
-        threads = threads_of(driver.process.pid)
         # The loop thread and the simulated device's serving thread, which stands in for
         # hardware that answers by itself.
-        assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == 2, threads
-        # The executor's thread (the main one), which shares the interpreter lock with the loop.
-        assert thread_of(driver.process.pid, driver.process.pid)[1:] == (os.SCHED_FIFO, 29)
-        assert locked_kib(driver.process.pid) > 0
-        code, output = driver.interrupt()
-        assert code == 0, output
-        assert 'refused' not in output
+        assert_real_time_at_30(driver, threads_at_30=2)
     finally:
         client.close()
         driver.kill()
@@ -142,13 +152,8 @@ def test_the_bridge_runs_its_input_thread_at_input_priority_and_its_executor_one
         assert values['executor scheduler'] == 'SCHED_FIFO 29', values
         assert values['memory lock'] == 'locked', values
         threads = threads_of(bridge.process.pid)
-        assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == 1, threads
-        assert thread_of(bridge.process.pid, bridge.process.pid)[1:] == (os.SCHED_FIFO, 29)
         assert sum(t[1] != os.SCHED_OTHER for t in threads) == 2, threads
-        assert locked_kib(bridge.process.pid) > 0
-        code, output = bridge.interrupt()
-        assert code == 0, output
-        assert 'refused' not in output
+        assert_real_time_at_30(bridge, threads_at_30=1)
     finally:
         bridge.kill()
 
