@@ -24,7 +24,11 @@ as JSON:
 - pot frame at the driver -> joint_states received by the subscriber;
 - wrench published -> the matching torque command received by the device: the publisher
   flips the sign of its moment about z every 20 ms, which flips the sign of the axis-1
-  command (tau1 = mz), and each flip is matched with the first command of the new sign;
+  command (tau1 = mz), and each flip of the measured window from the first command that
+  carried a torque is matched with the first command of the new sign; for
+  the flips slower than 20 ms (one never applied waits for the next of its sign), the share of
+  the commands meanwhile that were zero or still of the old sign, the longest gap between
+  them, and the driver's counters of zeroed wrenches;
 - CPU time per cycle of the driver's loop thread by phase, and of the whole process; the cores
   each of the four processes used;
 - with wire timing at 115200 baud and 1 Mbaud: achieved rate over the wire-limited rate;
@@ -218,6 +222,37 @@ def wrench_latencies(flips, commands):
     return latencies
 
 
+def slow_flips(flips, commands):
+    """
+    Return what the device got while each flip slower than FLIP_PERIOD_S was on its way.
+
+    A flip is matched with the first command of its sign, so one never applied waits for the
+    next flip of that sign: its latency is a multiple of the flip period. Returns the count of
+    such flips and, over the commands between each and its match, the share that were zero
+    (the driver refused or timed out the wrench), the share of the old sign (the new wrench not
+    yet taken) and the longest gap between two commands (the loop stalled), in ms.
+    """
+    times, axis1 = commands[:, 0], commands[:, 1]
+    zero = old = total = 0
+    longest_gap_ns = 0.0
+    count = 0
+    for published_ns, sign in flips:
+        after = np.flatnonzero((times >= published_ns) & (np.sign(axis1) == sign))
+        if not after.size or times[after[0]] - published_ns <= FLIP_PERIOD_S * 1e9:
+            continue
+        count += 1
+        between = (times >= published_ns) & (times < times[after[0]])
+        zero += int(np.sum(between & (axis1 == 0.0)))
+        old += int(np.sum(between & (np.sign(axis1) == -sign)))
+        total += int(np.sum(between))
+        window = times[(times >= published_ns) & (times <= times[after[0]])]
+        if window.size > 1:
+            longest_gap_ns = max(longest_gap_ns, float(np.diff(window).max()))
+    return {'count': count, 'zero_share': zero / total if total else None,
+            'old_sign_share': old / total if total else None,
+            'longest_gap_ms': longest_gap_ns / 1e6 if count else None}
+
+
 def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_priority=0,
         dds_profile=False, publisher_priority=0):
     """Run the four processes for `duration` s; return the figures of this run."""
@@ -245,6 +280,10 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
                               env=realtime_env, stdout=subprocess.DEVNULL)
     subscriber_out = str(workdir / f'subscriber_{tag}')
     publisher_out = str(workdir / f'publisher_{tag}.npy')
+    # A repeated run's peers signal readiness anew: the last run's files would end the wait
+    # at once, and the measured window would begin before the peers run.
+    for ready in (subscriber_out + '.ready', publisher_out + '.ready'):
+        pathlib.Path(ready).unlink(missing_ok=True)
     peers = [subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
                                '--duration', str(duration), '--publisher-priority',
                                str(publisher_priority)], env=role_env)
@@ -280,6 +319,13 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
     states_window = states[(states[:, 1] >= wall_start) & (states[:, 1] < wall_end)]
     window_s = (wall_end - wall_start) / 1e9
     cycles = int(in_window.sum())
+    # The flips of the measured window (not the last 0.1 s, whose match may come after it),
+    # from the first command that carried a torque: the publisher starts once it has matched
+    # the driver's subscription, and the driver's reader may match it later.
+    in_window_flips = flips[(flips[:, 0] >= wall_start) & (flips[:, 0] < wall_end - 1e8)]
+    torques = device[device[:, 1] != 0.0, 0]
+    first_torque_ns = torques[0] if torques.size else np.inf
+    measured_flips = in_window_flips[in_window_flips[:, 0] >= first_torque_ns]
     figures = {
         'loop_rate_hz': rate_hz,
         'baud': baud,
@@ -295,7 +341,11 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'pot_frame_to_subscriber_ms': percentiles(states_window[:, 0] - states_window[:, 1],
                                                   1e-6),
         'wrench_to_device_ms': percentiles(
-            wrench_latencies(flips[flips[:, 0] < wall_end - 1e8], device), 1e3),
+            wrench_latencies(measured_flips, device), 1e3),
+        'slow_flips': slow_flips(measured_flips, device),
+        'flips_before_first_torque': int(np.sum(in_window_flips[:, 0] < first_torque_ns)),
+        'wrench_zeroed': {key: int(diagnostics.get(f'force {key}', -1))
+                          for key in ('watchdog_trips', 'age_expiries', 'rejected_too_old')},
         'cpu_steal': steal,
         'process_cores': {role: seconds * 1e9 / (wall_end - wall_start)
                           for role, seconds in role_cpu.items()},
@@ -363,6 +413,17 @@ def print_table(results):
               f'{100 * r["cpu_steal"]:4.0f}%')
 
 
+def describe_slow_flips(figures):
+    """One run's slow flips and zeroing counters, in words."""
+    slow, zeroed = figures['slow_flips'], figures['wrench_zeroed']
+    counters = ', '.join(f'{key} {value}' for key, value in zeroed.items())
+    if not slow['count']:
+        return f'none ({counters})'
+    return (f'{slow["count"]}, commands zero {100 * slow["zero_share"]:.0f} % and of the old '
+            f'sign {100 * slow["old_sign_share"]:.0f} %, longest gap '
+            f'{slow["longest_gap_ms"]:.1f} ms ({counters})')
+
+
 def run_all(args, domain_id):
     """Run every configuration the arguments ask for; return the figures of each run."""
     results = []
@@ -425,6 +486,10 @@ def main():
         f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}: ' + ', '.join(
             f'{role} {cores:.2f}' for role, cores in r['process_cores'].items())
         for r in results if 'median_of' not in r))
+    print(f'wrench flips slower than {1e3 * FLIP_PERIOD_S:g} ms, the commands the device got '
+          "meanwhile, and the driver's zeroing counters: " + '; '.join(
+              f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}: {describe_slow_flips(r)}'
+              for r in results if 'median_of' not in r))
     out = pathlib.Path(args.json or REPO / 'benchmarks' / 'results' /
                        time.strftime('loop-%Y%m%d-%H%M%S.json'))
     out.parent.mkdir(parents=True, exist_ok=True)

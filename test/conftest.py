@@ -64,7 +64,9 @@ def no_orphaned_dds_shared_memory():
     yield
     # Participants' segments only: a port is shared by the participants of a domain, and
     # one was seen left after a run whose processes had all torn down (not understood yet).
-    left = dds_shm.orphaned({group for group in watcher.stop() if '_port' not in group})
+    noted = watcher.stop()
+    left = dds_shm.orphaned({group for group in noted if '_port' not in group})
     dds_shm.remove(left)
     assert not left, (f'{len(left)} Fast DDS shared-memory segments or ports were left by '
-                      f'processes that did not tear down (removed now): {sorted(left)}')
+                      'processes that did not tear down (removed now): '
+                      + '; '.join(f'{group}, held by {noted[group]}' for group in sorted(left)))

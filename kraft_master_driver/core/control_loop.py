@@ -129,31 +129,11 @@ class ControlLoop:
 
     def _raise_priority(self):
         """Give this thread real-time priority and lock memory if asked and allowed; say so."""
-        priority = self.priority
-        if not priority:
+        if not self.priority:
             return
-        refused = realtime.set_fifo_priority(priority)
-        if refused:
-            self.scheduler = f'normal ({refused})'
-            self.log.warning(
-                f'loop_priority {priority}: real-time scheduling refused ({refused}); the loop '
-                f'runs at normal priority ({realtime.PRIORITY_FIX}; or set loop_priority 0 to '
-                'silence this)')
-            return
-        self.scheduler = f'SCHED_FIFO {priority}'
-        if self.executor_thread is not None:
-            # The executor's thread shares the interpreter lock with this one. At normal
-            # priority, preempted by other work while it holds the lock, it stalls the loop.
-            below = max(1, priority - 1)
-            refused = realtime.set_fifo_priority(below, self.executor_thread)
-            self.executor_scheduler = (f'SCHED_FIFO {below}' if refused is None
-                                       else f'normal ({refused})')
-        refused = realtime.lock_memory()
-        self.memory_lock = 'locked' if refused is None else f'not locked ({refused})'
-        if refused:
-            self.log.warning(
-                f'memory lock refused ({refused}): a page fault may delay a cycle '
-                f'({realtime.MEMLOCK_FIX})')
+        granted = realtime.make_real_time(self.priority, self.executor_thread, self.log.warning,
+                                          'loop_priority', 'the loop')
+        self.scheduler, self.executor_scheduler, self.memory_lock = granted
 
     def _cycle_until_stopped(self):
         """

@@ -9,6 +9,7 @@ import ctypes
 import ctypes.util
 import errno
 import os
+from typing import NamedTuple
 
 # <sys/mman.h>: lock what is mapped now, what is mapped later, each page once first touched
 # (not the whole 800 MB of address space a ROS process reserves, up front).
@@ -35,3 +36,37 @@ def lock_memory():
         return None
     code = ctypes.get_errno()
     return f'[Errno {code}] {os.strerror(code)} ({errno.errorcode.get(code, "?")})'
+
+
+class Scheduling(NamedTuple):
+    """What a thread got of what it asked, in words for diagnostics."""
+
+    thread: str = 'normal'
+    executor: str = 'normal'
+    memory_lock: str = 'not locked'
+
+
+def make_real_time(priority, executor_thread, warn, parameter, thread):
+    """
+    Run the calling thread SCHED_FIFO at `priority`, `executor_thread` one below; lock memory.
+
+    The executor's thread (a native id, or None) shares the interpreter lock with the calling
+    one: at normal priority, preempted by other work while it holds the lock, it stalls the
+    real-time thread. Each refusal is said once through `warn`, naming `parameter` and the
+    calling `thread` (in words). Returns the Scheduling granted.
+    """
+    refused = set_fifo_priority(priority)
+    if refused:
+        warn(f'{parameter} {priority}: real-time scheduling refused ({refused}); {thread} runs '
+             f'at normal priority ({PRIORITY_FIX}; or set {parameter} 0 to silence this)')
+        return Scheduling(thread=f'normal ({refused})')
+    executor = 'normal'
+    if executor_thread is not None:
+        below = max(1, priority - 1)
+        refused = set_fifo_priority(below, executor_thread)
+        executor = f'SCHED_FIFO {below}' if refused is None else f'normal ({refused})'
+    refused = lock_memory()
+    if refused:
+        warn(f'memory lock refused ({refused}): a page fault may delay a cycle ({MEMLOCK_FIX})')
+    return Scheduling(f'SCHED_FIFO {priority}', executor,
+                      'locked' if refused is None else f'not locked ({refused})')

@@ -23,6 +23,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.core import realtime
 from kraft_master_driver.core.passivity import LinkMonitor
 from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
 from kraft_master_driver.link import cdr
@@ -127,6 +128,9 @@ PARAMETERS = {
                             'files); false: wait for the enable service.'),
     'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
                           low=-1, high=127),
+    'input_priority': Spec(0, 'SCHED_FIFO priority of the thread that takes the streaming '
+                           "inputs and sends servo_cp, servo_cv and wrench, the executor's "
+                           'thread one below; 0: normal scheduling.', low=0, high=98),
 }
 
 
@@ -150,6 +154,9 @@ class TeleopNode(Node):
         self._tf = self._tf_buffer() if config['base_rotation_from_tf'] else None
         self._clutch_inputs = {'clutch': False, 'joy': False}
         self._published_state = None
+        self._input_priority = config['input_priority']
+        self._executor_thread = threading.get_native_id()  # the thread that will spin the node
+        self.scheduling = realtime.Scheduling()
         # The bridge and the publishers are used by the input thread and the executor alike.
         self._lock = threading.Lock()
         settings = self.bridge.settings
@@ -228,6 +235,10 @@ class TeleopNode(Node):
         executor timer each woke the executor, whose wait-set bookkeeping took about 2 ms of a
         loaded machine's CPU per wake-up (benchmarks/bridge.py --profile).
         """
+        if self._input_priority:
+            self.scheduling = realtime.make_real_time(
+                self._input_priority, self._executor_thread, self.get_logger().warning,
+                'input_priority', 'the input thread')
         try:
             with ExitStack() as in_use:
                 in_use.enter_context(self.context.handle)
@@ -418,7 +429,10 @@ class TeleopNode(Node):
                   'slave energy in (J)': f'{port.energy_in:.4f}',
                   'slave energy out (J)': f'{port.energy_out:.4f}',
                   'slave energy dissipated (J)': f'{port.dissipated:.4f}',
-                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}'}
+                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}',
+                  'input scheduler': self.scheduling.thread,
+                  'executor scheduler': self.scheduling.executor,
+                  'memory lock': self.scheduling.memory_lock}
         link = self.pose_link.summary()
         if link is not None:
             values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'

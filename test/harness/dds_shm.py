@@ -124,14 +124,28 @@ def _descends_from(pid, ancestor):
     return pid == ancestor
 
 
+def _command_line(pid, longest=160):
+    """Return the command line of process `pid`, cut to `longest` characters."""
+    try:
+        line = pathlib.Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ')
+    except (FileNotFoundError, ProcessLookupError):
+        return '(gone)'
+    return line.decode(errors='replace').strip()[:longest]
+
+
 class Watcher(threading.Thread):
-    """Notes, every `period` s, the new groups held by this process or one of its descendants."""
+    """
+    Notes, every `period` s, the new groups held by this process or one of its descendants.
+
+    With each, whose it was when first seen: the holder's command line and pid, and the test
+    that was running (pytest's PYTEST_CURRENT_TEST), so that one left behind can be traced.
+    """
 
     def __init__(self, period=0.2):
         """Take the groups there now as not ours; call start()."""
         super().__init__(name='dds_shm_watcher', daemon=True)
         self.before = groups()
-        self.ours = set()
+        self.ours = {}
         self._period = period
         self._stopping = threading.Event()
 
@@ -141,14 +155,17 @@ class Watcher(threading.Thread):
             self.look()
 
     def look(self):
-        """Note the new groups whose lock one of our processes holds now."""
+        """Note the new groups whose lock one of our processes holds now, and whose they are."""
         owners = _lock_owners()
-        for group in groups() - self.before - self.ours:
-            if any(_descends_from(pid, os.getpid()) for pid in _holders(group, owners)):
-                self.ours.add(group)
+        for group in groups() - self.before - self.ours.keys():
+            ours = sorted(pid for pid in _holders(group, owners)
+                          if _descends_from(pid, os.getpid()))
+            if ours:
+                test = os.environ.get('PYTEST_CURRENT_TEST', 'no test')
+                self.ours[group] = f'{_command_line(ours[0])} (pid {ours[0]}) during {test}'
 
     def stop(self):
-        """Stop looking (after a last look); return the groups noted."""
+        """Stop looking (after a last look); return {group noted: whose it was}."""
         self._stopping.set()
         self.join()
         self.look()

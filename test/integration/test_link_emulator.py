@@ -50,19 +50,27 @@ class Side:
         self.node = rclpy.create_node('link_test', context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._stopping = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
     def _spin(self):
         try:
-            self.executor.spin()
+            while not self._stopping.is_set():
+                self.executor.spin_once(timeout_sec=0.05)
         except rclpy.executors.ExternalShutdownException:
             pass
 
     def close(self):
-        """Leave the domain: the spinning thread ends before the node it spins is destroyed."""
-        self.executor.shutdown()
+        """
+        Leave the domain: the spinning thread ends before its executor and node are destroyed.
+
+        Shut down from here while it spun, the executor destroyed the guard condition its
+        thread was triggering (InvalidHandle in the thread, seen in a fresh-clone run).
+        """
+        self._stopping.set()
         self.thread.join(timeout=5.0)
+        self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 

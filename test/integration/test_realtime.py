@@ -1,9 +1,10 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""A real-time station: what the driver asks of Linux, and the Fast DDS profile it ships."""
+"""A real-time station: what the driver and the bridge ask of Linux, and the Fast DDS profile."""
 import os
 import pathlib
 
+from diagnostic_msgs.msg import DiagnosticArray
 from harness import PACKAGE
 from harness.driver import DriverProcess, next_domain_id, RosClient
 import pytest
@@ -35,6 +36,23 @@ def locked_kib(pid):
     raise AssertionError(f'no VmLck in /proc/{pid}/status')
 
 
+def assert_real_time_at_30(process, threads_at_30):
+    """
+    Assert `threads_at_30` threads of `process` at SCHED_FIFO 30, and its main thread at 29.
+
+    The main thread spins the executor, which shares the interpreter lock with the real-time
+    threads. Also asserted: memory locked, and a clean exit at Ctrl-C without a refusal.
+    """
+    pid = process.process.pid
+    threads = threads_of(pid)
+    assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == threads_at_30, threads
+    assert thread_of(pid, pid)[1:] == (os.SCHED_FIFO, 29)
+    assert locked_kib(pid) > 0
+    code, output = process.interrupt()
+    assert code == 0, output
+    assert 'refused' not in output
+
+
 def start(install_prefix, parameters, wrapper=()):
     """Start the installed driver on its built-in simulator; return (driver, client)."""
     domain_id = next_domain_id()
@@ -53,16 +71,9 @@ def start(install_prefix, parameters, wrapper=()):
 def test_the_built_in_simulator_runs_at_the_loop_priority_and_memory_is_locked(install_prefix):
     driver, client = start(install_prefix, [('loop_priority', '30')])
     try:
-        threads = threads_of(driver.process.pid)
         # The loop thread and the simulated device's serving thread, which stands in for
         # hardware that answers by itself.
-        assert sum(t[1:] == (os.SCHED_FIFO, 30) for t in threads) == 2, threads
-        # The executor's thread (the main one), which shares the interpreter lock with the loop.
-        assert thread_of(driver.process.pid, driver.process.pid)[1:] == (os.SCHED_FIFO, 29)
-        assert locked_kib(driver.process.pid) > 0
-        code, output = driver.interrupt()
-        assert code == 0, output
-        assert 'refused' not in output
+        assert_real_time_at_30(driver, threads_at_30=2)
     finally:
         client.close()
         driver.kill()
@@ -106,3 +117,60 @@ def test_a_refused_memory_lock_is_one_warning_with_the_fix_and_the_loop_runs_on(
     finally:
         client.close()
         driver.kill()
+
+
+def bridge_scheduling(install_prefix, wrapper=()):
+    """
+    Start the installed bridge with input_priority 30; return (bridge, its diagnostics' values).
+
+    The values are those of the first diagnostics after its input thread asked for its priority.
+    """
+    domain_id = next_domain_id()
+    bridge = DriverProcess(install_prefix, domain_id, [('input_priority', '30')],
+                           name='kraft_master_teleop', wrapper=wrapper)
+    client = RosClient(domain_id)
+    values = []
+    client.node.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda msg: values.extend({kv.key: kv.value for kv in status.values}
+                                  for status in msg.status), 10)
+    try:
+        client.wait(lambda: any(v.get('input scheduler', 'normal') != 'normal' for v in values))
+    except AssertionError:
+        bridge.kill()
+        raise
+    finally:
+        client.close()
+    return bridge, next(v for v in values if v.get('input scheduler', 'normal') != 'normal')
+
+
+def test_the_bridge_runs_its_input_thread_at_input_priority_and_its_executor_one_below(
+        install_prefix):
+    bridge, values = bridge_scheduling(install_prefix)
+    try:
+        assert values['input scheduler'] == 'SCHED_FIFO 30', values
+        assert values['executor scheduler'] == 'SCHED_FIFO 29', values
+        assert values['memory lock'] == 'locked', values
+        threads = threads_of(bridge.process.pid)
+        assert sum(t[1] != os.SCHED_OTHER for t in threads) == 2, threads
+        assert_real_time_at_30(bridge, threads_at_30=1)
+    finally:
+        bridge.kill()
+
+
+def test_a_refused_input_priority_is_one_warning_with_the_fix_and_the_bridge_runs_on(
+        install_prefix):
+    without_sys_nice = ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice']
+    bridge, values = bridge_scheduling(install_prefix, without_sys_nice)
+    try:
+        assert values['input scheduler'].startswith('normal ('), values
+        assert values['executor scheduler'] == 'normal', values
+        assert all(t[1] == os.SCHED_OTHER for t in threads_of(bridge.process.pid))
+        code, output = bridge.interrupt()
+        assert code == 0, output
+        warnings = [line for line in output.splitlines() if 'real-time scheduling refused' in line]
+        assert len(warnings) == 1, output
+        assert 'input_priority 30' in warnings[0] and 'the input thread' in warnings[0]
+        assert 'limits.conf' in warnings[0]
+    finally:
+        bridge.kill()
