@@ -222,7 +222,12 @@ def test_a_publisher_on_wrench_and_one_on_servo_cf_are_two_sources(crtk):
             (stamp for stamp, status in reversed(crtk.statuses) if status.message == expected),
             None))
         # Every state after a status that says so carries no torque.
-        assert not any(crtk.torques_after(refused_at, refused=True))
+        torques = crtk.torques_after(refused_at, refused=True)
+        # On failure, what the driver said since (once, a fresh-clone run saw torque here).
+        said = [(stamp - refused_at, status.message,
+                 next((kv.value for kv in status.values if kv.key == 'wrench sources'), None))
+                for stamp, status in crtk.statuses if stamp >= refused_at]
+        assert not any(torques), f'{sum(torques)} of {len(torques)} with torque; since: {said}'
     finally:
         client.node.destroy_publisher(second)
     crtk.stream_until(crtk.torque_on)
