@@ -38,6 +38,9 @@ as JSON:
 --load runs a busy loop per core beside everything (the bare loop too); --dds-profile gives the
 driver and the wrench publisher config/fastdds_realtime.xml (DDS threads at SCHED_FIFO 50);
 --publisher-priority runs the wrench publisher's thread SCHED_FIFO, as a bridge would.
+--sched-trace splits the device's gaps by what the driver's loop thread did in them, from the
+kernel's scheduler events (benchmarks/sched_trace.py; perf, as root); --worker-priority, an
+experiment, runs the kernel workers that carry the pseudo-terminal's bytes SCHED_FIFO.
 """
 import argparse
 import json
@@ -57,6 +60,7 @@ sys.path.insert(0, str(REPO))
 
 from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
 from machine import bare_loop, bare_pty, cpu_times, steal_fraction  # noqa: E402, I100
+from sched_trace import Recording, SLOW_GAP_MS, summarize  # noqa: E402, I100
 
 DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
 DDS_PROFILE = REPO / 'config' / 'fastdds_realtime.xml'
@@ -171,6 +175,25 @@ def process_cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
+def set_unbound_workers(priority):
+    """
+    Run every unbound kernel worker (kworker/u*) SCHED_FIFO `priority`, or 0: normal again.
+
+    The tty layer hands a pseudo-terminal's bytes to their reader in one of these. Workers the
+    kernel starts later keep normal priority. Returns how many were set.
+    """
+    policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
+    count = 0
+    for task in pathlib.Path('/proc').glob('[0-9]*'):
+        try:
+            if (task / 'comm').read_text().startswith('kworker/u'):
+                os.sched_setscheduler(int(task.name), policy, os.sched_param(priority))
+                count += 1
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+    return count
+
+
 def start_simulator(env, record, baud, priority):
     command = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
                '--record', record, '--priority', str(priority)]
@@ -254,7 +277,7 @@ def slow_flips(flips, commands):
 
 
 def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_priority=0,
-        dds_profile=False, publisher_priority=0):
+        dds_profile=False, publisher_priority=0, sched_trace=False, worker_priority=0):
     """Run the four processes for `duration` s; return the figures of this run."""
     env = ros_env(domain_id)
     realtime_env = dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(DDS_PROFILE)) if dds_profile \
@@ -290,8 +313,11 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
              for role, out, role_env in (('subscriber', subscriber_out, env),
                                          ('publisher', publisher_out, realtime_env))]
     processes = (*peers, driver, sim)
+    # Started now, perf is recording by the time the peers are ready.
+    recording = Recording(workdir / f'sched_{tag}.data') if sched_trace else None
     try:
         wait_ready([subscriber_out + '.ready', publisher_out + '.ready'], processes)
+        workers = set_unbound_workers(worker_priority) if worker_priority else None
         machine_start = cpu_times()
         cpu_start, wall_start = process_cpu_seconds(driver.pid), time.time_ns()
         roles = {'simulator': sim, 'driver': driver, 'subscriber': peers[0],
@@ -303,6 +329,10 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
                     for role, p in roles.items()}
         steal = steal_fraction(machine_start, cpu_times())
     finally:
+        if worker_priority:
+            set_unbound_workers(0)
+        if recording:
+            recording.stop()
         for process in processes:
             process.send_signal(signal.SIGINT)
             try:
@@ -347,6 +377,7 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'wrench_zeroed': {key: int(diagnostics.get(f'force {key}', -1))
                           for key in ('watchdog_trips', 'age_expiries', 'rejected_too_old')},
         'cpu_steal': steal,
+        'workers_at_priority': workers,
         'process_cores': {role: seconds * 1e9 / (wall_end - wall_start)
                           for role, seconds in role_cpu.items()},
         'cpu_per_cycle_us': {
@@ -356,6 +387,11 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
             'process': 1e6 * (cpu_end - cpu_start) / max(cycles, 1),
         },
     }
+    if sched_trace:
+        # The device's times are the system clock's, perf's the monotonic clock's.
+        offset_ns = time.time_ns() - time.monotonic_ns()
+        figures['sched_trace'] = summarize(recording.path, device[in_window, 0] - offset_ns,
+                                           driver.pid, sim.pid)
     if baud:
         wire_rate = 1.0 / get_codec('kraft-default').wire_cycle_time(baud)
         figures['wire_limited_rate'] = wire_rate
@@ -374,7 +410,8 @@ def median_run(repeats):
             known = [value for value in values if value is not None]
             return float(np.median(known)) if known else None
         return values[0]
-    figures = median_of(repeats)
+    figures = median_of([{key: value for key, value in r.items() if key != 'sched_trace'}
+                         for r in repeats])
     figures['median_of'] = len(repeats)
     return figures
 
@@ -424,6 +461,24 @@ def describe_slow_flips(figures):
             f'{slow["longest_gap_ms"]:.1f} ms ({counters})')
 
 
+def describe_sched_trace(figures):
+    """One run's split of the device's gaps by what the loop thread did, in words."""
+    trace = figures['sched_trace']
+    means = ', '.join(f'{state} {trace["mean_ms_all"][state]:.3f} / '
+                      f'{trace["mean_ms_slow"][state]:.3f}' for state in trace['mean_ms_all'])
+    excess = ', '.join(f'{state} {count}' for state, count in
+                       sorted(trace['slow_gaps_by_excess'].items(), key=lambda kv: -kv[1]))
+    ahead = ', '.join(f'{comm} {ms:.1f} ms' for comm, ms in trace['ahead_ms'].items())
+    workers = trace['worker_wait_percentiles_ms']
+    return (f'{figures["loop_rate_hz"]:g} Hz {figures["baud"] or "pty"}: the loop thread in '
+            f'the device\'s gaps, ms per gap (all {trace["gaps"]} / the {trace["slow_gaps"]} '
+            f'over {SLOW_GAP_MS} ms): {means}; slow gaps by the state with most time beyond its '
+            f'mean: {excess or "-"}; ran while it waited for a CPU in them: {ahead or "-"}; '
+            f'kernel workers woken in a gap waited for a CPU {trace["worker_wait_ms"]["all"]:.3f} '
+            f'/ {trace["worker_wait_ms"]["slow"]:.3f} ms per gap (each: median '
+            f'{fmt(workers["median"])}, p99 {fmt(workers["p99"])}, max {fmt(workers["max"])} ms)')
+
+
 def run_all(args, domain_id):
     """Run every configuration the arguments ask for; return the figures of each run."""
     results = []
@@ -436,7 +491,8 @@ def run_all(args, domain_id):
                       f'{args.duration:g} s ({attempt}/{args.repeat}) ...', flush=True)
                 repeats.append(run(rate, args.duration, baud, domain_id,
                                    pathlib.Path(workdir), args.set, args.sim_priority,
-                                   args.dds_profile, args.publisher_priority))
+                                   args.dds_profile, args.publisher_priority,
+                                   args.sched_trace, args.worker_priority))
             results.extend(repeats)
             if args.repeat > 1:
                 results.append(median_run(repeats))
@@ -463,6 +519,11 @@ def main():
                         help='driver and wrench publisher with config/fastdds_realtime.xml')
     parser.add_argument('--publisher-priority', type=int, default=0,
                         help="the wrench publisher's SCHED_FIFO priority (default 0: normal)")
+    parser.add_argument('--sched-trace', action='store_true',
+                        help="split the device's gaps by what the loop thread did (perf; root)")
+    parser.add_argument('--worker-priority', type=int, default=0,
+                        help='an experiment: the unbound kernel workers, which carry the '
+                             "pseudo-terminal's bytes, SCHED_FIFO at this priority in each run")
     parser.add_argument('--json', help='write the figures here (default benchmarks/results/)')
     parser.add_argument('--role', choices=('subscriber', 'publisher'), help=argparse.SUPPRESS)
     parser.add_argument('--out', help=argparse.SUPPRESS)
@@ -490,6 +551,9 @@ def main():
           "meanwhile, and the driver's zeroing counters: " + '; '.join(
               f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}: {describe_slow_flips(r)}'
               for r in results if 'median_of' not in r))
+    for r in results:
+        if 'sched_trace' in r and 'median_of' not in r:
+            print(describe_sched_trace(r))
     out = pathlib.Path(args.json or REPO / 'benchmarks' / 'results' /
                        time.strftime('loop-%Y%m%d-%H%M%S.json'))
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -499,6 +563,7 @@ def main():
                                'sim_priority': args.sim_priority, 'load': args.load,
                                'dds_profile': args.dds_profile,
                                'publisher_priority': args.publisher_priority,
+                               'worker_priority': args.worker_priority,
                                'runs': results}, indent=2, default=float))
     print(f'figures written to {out}')
     return 0

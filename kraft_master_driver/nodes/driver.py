@@ -12,7 +12,7 @@ import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from kraft_master_driver.core import kinematics
+from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.core.control_loop import ControlLoop
 from kraft_master_driver.core.force_reflection import BASE_FRAME, ForceReflection, WRIST_FRAME
@@ -31,6 +31,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
+# The loop thread's name, in ps -L and top as in Python (benchmarks/loop.py --sched-trace finds
+# it by it).
+LOOP_THREAD = 'kraft_loop'
 DIAGNOSTIC_LEVELS = {driver_diagnostics.OK: DiagnosticStatus.OK,
                      driver_diagnostics.WARN: DiagnosticStatus.WARN,
                      driver_diagnostics.ERROR: DiagnosticStatus.ERROR}
@@ -116,7 +119,7 @@ class KraftMasterNode(Node):
             priority=self.config['loop_priority'], executor_thread=threading.get_native_id(),
             keep_running=self.context.ok)
         # Not a daemon: the interpreter waits for the loop to zero the torques on its way out.
-        self._thread = threading.Thread(target=self.loop.run, name='kraft_master_loop')
+        self._thread = realtime.NamedThread(target=self.loop.run, name=LOOP_THREAD)
         self._thread.start()
 
     def _calibration(self):

@@ -72,7 +72,8 @@ def test_the_built_in_simulator_runs_at_the_loop_priority_and_memory_is_locked(i
     driver, client = start(install_prefix, [('loop_priority', '30')])
     try:
         # The loop thread and the simulated device's serving thread, which stands in for
-        # hardware that answers by itself.
+        # hardware that answers by itself. The loop thread carries its name in ps -L and top.
+        assert ('kraft_loop', os.SCHED_FIFO, 30) in threads_of(driver.process.pid)
         assert_real_time_at_30(driver, threads_at_30=2)
     finally:
         client.close()
