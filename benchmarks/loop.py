@@ -462,21 +462,35 @@ def describe_slow_flips(figures):
 
 
 def describe_sched_trace(figures):
-    """One run's split of the device's gaps by what the loop thread did, in words."""
+    """One run's split of the device's gaps by what the loop and the simulator did, in words."""
     trace = figures['sched_trace']
-    means = ', '.join(f'{state} {trace["mean_ms_all"][state]:.3f} / '
-                      f'{trace["mean_ms_slow"][state]:.3f}' for state in trace['mean_ms_all'])
-    excess = ', '.join(f'{state} {count}' for state, count in
-                       sorted(trace['slow_gaps_by_excess'].items(), key=lambda kv: -kv[1]))
-    ahead = ', '.join(f'{comm} {ms:.1f} ms' for comm, ms in trace['ahead_ms'].items())
-    workers = trace['worker_wait_percentiles_ms']
-    return (f'{figures["loop_rate_hz"]:g} Hz {figures["baud"] or "pty"}: the loop thread in '
-            f'the device\'s gaps, ms per gap (all {trace["gaps"]} / the {trace["slow_gaps"]} '
-            f'over {SLOW_GAP_MS} ms): {means}; slow gaps by the state with most time beyond its '
-            f'mean: {excess or "-"}; ran while it waited for a CPU in them: {ahead or "-"}; '
-            f'kernel workers woken in a gap waited for a CPU {trace["worker_wait_ms"]["all"]:.3f} '
-            f'/ {trace["worker_wait_ms"]["slow"]:.3f} ms per gap (each: median '
-            f'{fmt(workers["median"])}, p99 {fmt(workers["p99"])}, max {fmt(workers["max"])} ms)')
+
+    def listed(counts, unit=''):
+        return ', '.join(f'{key} {value:.1f}{unit}' if unit else f'{key} {value}'
+                         for key, value in counts.items()) or '-'
+
+    lines = [f'{figures["loop_rate_hz"]:g} Hz {figures["baud"] or "pty"}: the device\'s '
+             f'{trace["gaps"]} gaps, {trace["slow_gaps"]} over {SLOW_GAP_MS} ms; '
+             'ms per gap, all / slow:']
+    for role in ('loop', 'simulator'):
+        thread = trace[role]
+        if thread is None:
+            lines.append(f'  {role} thread: not in the trace')
+            continue
+        means = ', '.join(f'{state} {thread["mean_ms_all"][state]:.3f} / '
+                          f'{thread["mean_ms_slow"][state]:.3f}'
+                          for state in thread['mean_ms_all'])
+        lines.append(f'  {role} thread: {means}; slow gaps by the state with most time beyond '
+                     f'its mean: {listed(thread["slow_gaps_by_excess"])}; ran while it waited '
+                     f'for a CPU in them: {listed(thread["ahead_ms"], " ms")}')
+    workers = trace['workers']
+    each = workers['percentiles_ms']
+    lines.append(f'  kernel workers woken in a gap waited for a CPU '
+                 f'{workers["wait_ms"]["all"]:.3f} / {workers["wait_ms"]["slow"]:.3f} (each: '
+                 f'median {fmt(each["median"])}, p99 {fmt(each["p99"])}, max '
+                 f'{fmt(each["max"])}); in the slow gaps behind: '
+                 f'{listed(workers["ahead_ms"], " ms")}')
+    return '\n'.join(lines)
 
 
 def run_all(args, domain_id):

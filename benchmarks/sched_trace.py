@@ -5,18 +5,18 @@ Where the driver's loop thread spent the device's slow cycles, from the kernel's
 
 `loop.py --sched-trace` has perf record every CPU's sched_switch and sched_waking events during
 a run (root, or kernel.perf_event_paranoid at -1; Debian's perf is in linux-perf). Each gap
-between two commands the device received is then split by what the loop thread (kraft_loop)
-did in it:
+between two commands the device received is then split by what the driver's loop thread
+(kraft_loop) and the simulator's serving thread (kraft_sim) did in it:
 
 - running on a CPU;
 - ready, waiting for a CPU (and what ran there instead);
-- asleep, by what woke it: the simulator, a kernel worker (a pseudo-terminal's bytes reach
-  their reader through one), another thread of the driver (the interpreter lock, a DDS lock),
-  or anything else (its timer, which wakes it from whatever the CPU was running).
+- asleep, by what woke it: the other process, a kernel worker (a pseudo-terminal's bytes reach
+  their reader through one), another thread of its own process (the interpreter lock, a DDS
+  lock), or anything else (its timer, which wakes it from whatever the CPU was running).
 
 The figures are the mean time per gap in each state, over the gaps longer than SLOW_GAP_MS and
 over all gaps, and for each slow gap the state that had the most time beyond its mean. Beside
-them, how long the kernel workers woken in a gap waited for a CPU.
+them, how long the kernel workers woken in a gap waited for a CPU, and behind what.
 """
 import bisect
 import collections
@@ -28,10 +28,9 @@ import subprocess
 import numpy as np
 
 SLOW_GAP_MS = 1.25
-LOOP_THREAD = 'kraft_loop'  # nodes.driver.LOOP_THREAD
+# The threads followed, by their names (nodes.driver.LOOP_THREAD, simulation.serving).
+LOOP_THREAD, SERVING_THREAD = 'kraft_loop', 'kraft_sim'
 RUNNING, WAITING = 'running', 'waiting for a CPU'
-WOKEN_BY = ('simulator', 'kernel worker', 'driver thread', 'timer or other')
-STATES = (RUNNING, WAITING, *(f'asleep, woken by {waker}' for waker in WOKEN_BY))
 _SAMPLE = re.compile(r'^\s*(?P<comm>.*?)\s+(?P<pid>-?\d+)/(?P<tid>\d+)\s+\[(?P<cpu>\d+)\]\s+'
                      r'(?P<time>\d+)\.(?P<ns>\d{9}):\s+sched:(?P<event>\w+):\s+(?P<trace>.*)$')
 _SWITCH = re.compile(r'prev_comm=.* prev_pid=(?P<prev>\d+) prev_prio=-?\d+ '
@@ -85,31 +84,35 @@ def events(path):
 
 def worker_waits(trace):
     """
-    Return [(woken ns, ns until it ran)] of every kernel worker's wake-up, in order.
+    Return [(woken ns, ns until it ran, what ran on its CPU when woken)] of kernel workers.
 
     A pseudo-terminal's or a serial port's bytes reach their reader through a kernel worker
     (the tty layer's flip buffer work), which runs at normal priority.
     """
-    woken, waits = {}, []
-    for time_ns, _, _, _, _, event, fields in trace:
+    running_on, woken, waits = {}, {}, []
+    for time_ns, cpu, _, _, _, event, fields in trace:
         if event == 'sched_waking':
             if fields['comm'].startswith('kworker/'):
-                woken.setdefault(int(fields['pid']), time_ns)
+                woken.setdefault(int(fields['pid']),
+                                 (time_ns, running_on.get(int(fields['cpu']))))
         else:
+            running_on[cpu] = fields['next_comm']
             started = woken.pop(int(fields['next']), None)
             if started is not None:
-                waits.append((started, time_ns - started))
+                waits.append((started[0], time_ns - started[0], started[1]))
     return waits
 
 
-def loop_intervals(trace, driver_pid, simulator_pid):
+def thread_intervals(trace, pid, name, wakers):
     """
-    Return the loop thread's states as (start ns, end ns, state, what ran instead) in order.
+    Return the states of process pid's thread `name` as (start ns, end ns, state, ahead).
 
-    trace: what events() yields. The loop thread is the driver's thread named LOOP_THREAD.
+    trace: what events() yields; wakers: {pid: label} of the processes whose wakings of it are
+    told apart (a kernel worker's are 'kernel worker', any other 'timer or other'). ahead: the
+    task that ran while it waited for a CPU (None in the other states).
     """
     running_on = {}  # cpu -> comm of the task on it
-    intervals, loop_tid = [], None
+    intervals, tid = [], None
     since, state, ahead = None, None, None
 
     def enter(time_ns, new_state, new_ahead=None):
@@ -118,37 +121,30 @@ def loop_intervals(trace, driver_pid, simulator_pid):
             intervals.append((since, time_ns, state, ahead))
         since, state, ahead = time_ns, new_state, new_ahead
 
-    for time_ns, cpu, pid, tid, comm, event, fields in trace:
+    for time_ns, cpu, sample_pid, sample_tid, comm, event, fields in trace:
         if event == 'sched_switch':
             running_on[cpu] = fields['next_comm']
-            if loop_tid is None and pid == driver_pid and comm == LOOP_THREAD:
-                loop_tid = tid
-            if int(fields['prev']) == loop_tid:
+            if tid is None and sample_pid == pid and comm == name:
+                tid = sample_tid
+            if int(fields['prev']) == tid:
                 if fields['state'].startswith('R'):  # preempted: still ready
                     enter(time_ns, WAITING, fields['next_comm'])
                 else:
                     enter(time_ns, 'asleep')
-            if loop_tid is not None and int(fields['next']) == loop_tid:
+            if tid is not None and int(fields['next']) == tid:
                 enter(time_ns, RUNNING)
-        elif loop_tid is not None and int(fields['pid']) == loop_tid and state == 'asleep':
-            if pid == simulator_pid:
-                waker = 'simulator'
-            elif comm.startswith('kworker'):
-                waker = 'kernel worker'
-            elif pid == driver_pid:
-                waker = 'driver thread'
-            else:
-                waker = 'timer or other'
+        elif tid is not None and int(fields['pid']) == tid and state == 'asleep':
+            waker = wakers.get(sample_pid) or (
+                'kernel worker' if comm.startswith('kworker') else 'timer or other')
             # The sleep ends at the waking; the wait for a CPU follows.
             intervals.append((since, time_ns, f'asleep, woken by {waker}', None))
-            target = int(fields['cpu'])
-            since, state, ahead = time_ns, WAITING, running_on.get(target)
+            since, state, ahead = time_ns, WAITING, running_on.get(int(fields['cpu']))
     return intervals
 
 
 def split_gaps(intervals, gaps):
     """
-    Return, for each (start, end) gap in order, the ns of the loop's intervals within it.
+    Return, for each (start, end) gap in order, the ns of the intervals within it.
 
     Each is a Counter: by state, and by ('ahead', comm) for the task that ran while it waited.
     """
@@ -168,51 +164,83 @@ def split_gaps(intervals, gaps):
     return splits
 
 
-def summarize(path, command_times_ns, driver_pid, simulator_pid):
+def thread_figures(intervals, gaps, slow):
     """
-    Split the device's gaps (command_times_ns: monotonic, sorted) by the loop's states.
+    Return one thread's figures over the gaps (None if it is not in the trace); slow: the
+    indices of the slow gaps.
 
     mean_ms_all / mean_ms_slow: mean milliseconds per gap in each state; slow_gaps_by_excess:
     how many slow gaps had their largest excess over the mean in each state; ahead_ms: the
-    tasks that ran while the loop waited for a CPU in the slow gaps, milliseconds each;
-    worker_wait_ms: mean milliseconds per gap (all, slow) that the kernel workers woken in it
-    waited for a CPU; worker_wait_percentiles_ms: of each such wait.
+    tasks that ran while it waited for a CPU in the slow gaps, milliseconds each.
     """
-    trace = events(path)
-    intervals = loop_intervals(trace, driver_pid, simulator_pid)
     if not intervals:
-        raise RuntimeError(f'no {LOOP_THREAD} thread of process {driver_pid} in {path}')
-    gaps = [(a, b) for a, b in zip(command_times_ns[:-1], command_times_ns[1:])
-            if a >= intervals[0][0] and b <= intervals[-1][1]]
+        return None
     splits = split_gaps(intervals, gaps)
-    slow = [i for i, (a, b) in enumerate(gaps) if b - a > SLOW_GAP_MS * 1e6]
+    seen = {key for split in splits for key in split if isinstance(key, str)}
+    states = [state for state in (RUNNING, WAITING) if state in seen] + sorted(
+        seen - {RUNNING, WAITING, 'asleep'})
 
     def mean_ms(indices):
         return {state: sum(splits[i][state] for i in indices) / max(len(indices), 1) / 1e6
-                for state in STATES}
+                for state in states}
     mean_all = mean_ms(range(len(gaps)))
     by_excess = collections.Counter(
-        max(STATES, key=lambda state: splits[i][state] / 1e6 - mean_all[state]) for i in slow)
-    waits = worker_waits(trace)
-    starts = [start for start, _ in waits]
-
-    def worker_ms(indices):
-        """Mean ms per gap that kernel workers woken in the gap waited for a CPU."""
-        total = 0
-        for i in indices:
-            first, last = (bisect.bisect_left(starts, t) for t in gaps[i])
-            total += sum(wait for _, wait in waits[first:last])
-        return total / max(len(indices), 1) / 1e6
-    in_gaps = [wait for start, wait in waits if gaps and gaps[0][0] <= start < gaps[-1][1]]
+        max(states, key=lambda state: splits[i][state] / 1e6 - mean_all[state]) for i in slow)
     ahead = collections.Counter()
     for i in slow:
         ahead.update({key[1]: ns / 1e6 for key, ns in splits[i].items()
                       if isinstance(key, tuple)})
-    return {'gaps': len(gaps), 'slow_gaps': len(slow), 'mean_ms_all': mean_all,
-            'mean_ms_slow': mean_ms(slow), 'slow_gaps_by_excess': dict(by_excess),
+    return {'mean_ms_all': mean_all, 'mean_ms_slow': mean_ms(slow),
+            'slow_gaps_by_excess': dict(by_excess.most_common()),
+            'ahead_ms': dict(ahead.most_common(5))}
+
+
+def worker_figures(waits, gaps, slow):
+    """
+    Return how long the kernel workers woken in the gaps waited for a CPU.
+
+    wait_ms: mean milliseconds per gap (all, slow); ahead_ms: what ran on their CPU when they
+    were woken in the slow gaps (the waits' ms each); percentiles_ms: of each wait.
+    """
+    starts = [start for start, _, _ in waits]
+    ahead = collections.Counter()
+
+    def wait_ms(indices, note_ahead=False):
+        total = 0
+        for i in indices:
+            first, last = (bisect.bisect_left(starts, t) for t in gaps[i])
+            for _, wait, task in waits[first:last]:
+                total += wait
+                if note_ahead and task is not None:
+                    ahead[task] += wait / 1e6
+        return total / max(len(indices), 1) / 1e6
+    each = [wait for start, wait, _ in waits if gaps and gaps[0][0] <= start < gaps[-1][1]]
+    return {'wait_ms': {'all': wait_ms(range(len(gaps))), 'slow': wait_ms(slow, True)},
             'ahead_ms': dict(ahead.most_common(5)),
-            'worker_wait_ms': {'all': worker_ms(range(len(gaps))), 'slow': worker_ms(slow)},
-            'worker_wait_percentiles_ms': dict(zip(
+            'percentiles_ms': dict(zip(
                 ('median', 'p99', 'max'),
-                (float(np.percentile(in_gaps, q)) / 1e6 for q in (50, 99, 100))
-                if in_gaps else (None, None, None)))}
+                (float(np.percentile(each, q)) / 1e6 for q in (50, 99, 100))
+                if each else (None, None, None)))}
+
+
+def summarize(path, command_times_ns, driver_pid, simulator_pid):
+    """
+    Split the device's gaps (command_times_ns: monotonic, sorted) by what each thread did.
+
+    Returns {'gaps', 'slow_gaps', 'loop': thread_figures, 'simulator': thread_figures,
+    'workers': worker_figures}.
+    """
+    trace = events(path)
+    loop = thread_intervals(trace, driver_pid, LOOP_THREAD,
+                            {simulator_pid: 'simulator', driver_pid: 'driver thread'})
+    if not loop:
+        raise RuntimeError(f'no {LOOP_THREAD} thread of process {driver_pid} in {path}')
+    serving = thread_intervals(trace, simulator_pid, SERVING_THREAD,
+                               {driver_pid: 'driver', simulator_pid: 'simulator thread'})
+    gaps = [(a, b) for a, b in zip(command_times_ns[:-1], command_times_ns[1:])
+            if a >= loop[0][0] and b <= loop[-1][1]]
+    slow = [i for i, (a, b) in enumerate(gaps) if b - a > SLOW_GAP_MS * 1e6]
+    return {'gaps': len(gaps), 'slow_gaps': len(slow),
+            'loop': thread_figures(loop, gaps, slow),
+            'simulator': thread_figures(serving, gaps, slow),
+            'workers': worker_figures(worker_waits(trace), gaps, slow)}

@@ -32,13 +32,18 @@ def set_fifo_priority(priority, thread_id=0):
     return None
 
 
+def name_this_thread(name):
+    """Give the calling thread `name` in ps -L, top and perf too (Linux; its first 15 bytes)."""
+    if sys.platform.startswith('linux'):
+        ctypes.CDLL(None).prctl(PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+
+
 class NamedThread(threading.Thread):
-    """A thread whose name `ps -L`, top and perf show too (Linux; its first 15 bytes)."""
+    """A thread whose name ps -L, top and perf show too, as Python's own."""
 
     def run(self):
         """Name the OS thread, then run the target."""
-        if sys.platform.startswith('linux'):
-            ctypes.CDLL(None).prctl(PR_SET_NAME, self.name.encode()[:15], 0, 0, 0)
+        name_this_thread(self.name)
         super().run()
 
 

@@ -15,11 +15,14 @@ import select
 import threading
 import time
 
+from kraft_master_driver.core import realtime
 from kraft_master_driver.simulation.transport import READ_SIZE
 
 IDLE_TICK = 0.005  # s between ticks when nothing arrives
 WIRE_WAKE_EARLY = 0.0003  # s before a reply is due: select() oversleeps by ~0.1 ms
 REQUEST_TIMEOUT = 5.0  # s to wait for the thread to carry out a request
+# Its name, in ps -L and top as in Python (benchmarks/loop.py --sched-trace finds it by it).
+SERVING_THREAD = 'kraft_sim'
 
 
 class ServingThread(threading.Thread):
@@ -32,7 +35,7 @@ class ServingThread(threading.Thread):
         wire_time (s) is a reply's time on the wire (0: none); counters (a dict) counts the
         'replies' sent and the writes 'unsent'. Times are time.monotonic().
         """
-        super().__init__(name='kraft_master_sim', daemon=True)
+        super().__init__(name=SERVING_THREAD, daemon=True)
         self._transport = transport
         self._wire_time = wire_time
         self._counters = counters
@@ -86,6 +89,7 @@ class ServingThread(threading.Thread):
 
     def run(self):
         """Serve until stop()."""
+        realtime.name_this_thread(self.name)
         wake = self._wake[0]
         transport = self._transport
         while self.serving:
