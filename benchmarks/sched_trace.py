@@ -166,12 +166,12 @@ def split_gaps(intervals, gaps):
 
 def thread_figures(intervals, gaps, slow):
     """
-    Return one thread's figures over the gaps (None if it is not in the trace); slow: the
-    indices of the slow gaps.
+    Return one thread's figures over the gaps; slow: the indices of the slow gaps.
 
-    mean_ms_all / mean_ms_slow: mean milliseconds per gap in each state; slow_gaps_by_excess:
-    how many slow gaps had their largest excess over the mean in each state; ahead_ms: the
-    tasks that ran while it waited for a CPU in the slow gaps, milliseconds each.
+    None if the thread is not in the trace. mean_ms_all / mean_ms_slow: mean milliseconds per
+    gap in each state; slow_gaps_by_excess: how many slow gaps had their largest excess over
+    the mean in each state; ahead_ms: the tasks that ran while it waited for a CPU in the slow
+    gaps, milliseconds each.
     """
     if not intervals:
         return None
