@@ -14,6 +14,9 @@ as JSON:
 - bare/s: the cycles per second a loop that does nothing but sleep to each deadline reaches at
   the same rate, alone, just before the run (machine.bare_loop, at the driver's loop_priority,
   skipping missed periods as the driver does): the most this machine allowed at that moment;
+- bare work: that loop running a fixed amount of the driver's kinematics (BARE_WORK_US alone)
+  after each wake-up, just before the run: how long the same Python takes on this machine at
+  that moment (median, p99, max), against the loop thread's time running in a cycle;
 - bare pty: that loop exchanging a command and a reply of the device's sizes over a
   pseudo-terminal with a process that only answers (machine.bare_pty, at the driver's and the
   simulator's priorities), just before the run: its reply period p99 is the least the
@@ -59,7 +62,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
-from machine import bare_loop, bare_pty, cpu_times, steal_fraction  # noqa: E402, I100
+from machine import bare_loop, bare_pty, bare_work, cpu_times, steal_fraction  # noqa: E402, I100
 from sched_trace import Recording, SLOW_GAP_MS, summarize  # noqa: E402, I100
 
 DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
@@ -67,6 +70,8 @@ DDS_PROFILE = REPO / 'config' / 'fastdds_realtime.xml'
 FLIP_PERIOD_S = 0.02
 WRENCH_RATE_HZ = 1000.0
 MOMENT_NM = 0.5
+# The bare work loop's Python per cycle: about the driver's loop thread's CPU per 1 kHz cycle.
+BARE_WORK_US = 350.0
 
 
 def ros_env(domain_id):
@@ -282,10 +287,11 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
     env = ros_env(domain_id)
     realtime_env = dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(DDS_PROFILE)) if dds_profile \
         else env
-    floor = pty_floor = None
+    floor = pty_floor = work_floor = None
     if not baud:
         priority = loop_priority(driver_parameters)
         floor = bare_loop(rate_hz, duration, priority)
+        work_floor = bare_work(rate_hz, duration, priority, BARE_WORK_US)
         codec = get_codec('kraft-default')
         pty_floor = bare_pty(rate_hz, duration, priority, sim_priority, codec.command_size,
                              codec.reply_size)
@@ -364,6 +370,7 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
         'joint_states_per_s': len(states_window) / window_s,
         'bare_loop': floor,
         'bare_pty': pty_floor,
+        'bare_work': work_floor,
         'late_cycles': int(diagnostics.get('late cycles', -1)),
         'missed_cycles': int(diagnostics.get('missed cycles', -1)),
         'period_ms': percentiles(np.diff(device[in_window, 0]), 1e-6),
@@ -459,6 +466,13 @@ def describe_slow_flips(figures):
     return (f'{slow["count"]}, commands zero {100 * slow["zero_share"]:.0f} % and of the old '
             f'sign {100 * slow["old_sign_share"]:.0f} %, longest gap '
             f'{slow["longest_gap_ms"]:.1f} ms ({counters})')
+
+
+def describe_work(work):
+    """The bare work loop's figures in a few words."""
+    wall, cpu = work['work_wall_ms'], work['work_cpu_ms']
+    return (f'{wall["median"]:.3f} / {wall["p99"]:.3f} / {wall["max"]:.3f}, '
+            f'{cpu["median"]:.3f} / {cpu["p99"]:.3f}')
 
 
 def describe_sched_trace(figures):
@@ -565,6 +579,10 @@ def main():
           "meanwhile, and the driver's zeroing counters: " + '; '.join(
               f'{r["loop_rate_hz"]:g} Hz {r["baud"] or "pty"}: {describe_slow_flips(r)}'
               for r in results if 'median_of' not in r))
+    print(f"bare work ({BARE_WORK_US:g} us of the driver's kinematics after each wake-up, "
+          "alone at the loop's priority), wall ms median / p99 / max and CPU ms median / p99: "
+          + '; '.join(f'{r["loop_rate_hz"]:g} Hz: {describe_work(r["bare_work"])}'
+                      for r in results if r.get('bare_work') and 'median_of' not in r))
     for r in results:
         if 'sched_trace' in r and 'median_of' not in r:
             print(describe_sched_trace(r))

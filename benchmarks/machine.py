@@ -8,7 +8,9 @@ does nothing but sleep to each deadline, paced like the driver's, so that the dr
 rate can be read against the rate this machine gives a do-nothing loop at the same moment.
 bare_pty(): the same loop exchanging a command and a reply of the device's sizes over a
 pseudo-terminal with an echoing process, so that the driver's period can be read against what
-the pseudo-terminal alone allows.
+the pseudo-terminal alone allows. bare_work(): the same loop doing a fixed amount of the
+driver's own Python work (its kinematics) after each wake-up, so that the time the driver's
+loop runs in a cycle can be read against how long the same work takes on this machine.
 """
 import argparse
 import json
@@ -129,6 +131,54 @@ def bare_pty(rate_hz, seconds, priority, device_priority, command_size, reply_si
     return json.loads(output)
 
 
+def bare_work(rate_hz, seconds, priority, work_us):
+    """Run pace_work() in a child process; return its figures."""
+    output = subprocess.run(
+        [sys.executable, __file__, str(rate_hz), str(seconds), str(priority), '--work-us',
+         str(work_us)], check=True, capture_output=True, text=True).stdout
+    return json.loads(output)
+
+
+def pace_work(rate_hz, seconds, priority, work_us):
+    """
+    After each wake-up, run the driver's kinematics as many times as take `work_us` alone.
+
+    The count of calls is fixed before the run from their median time at that moment. Return
+    cycles/s, the calls per cycle, and the wall and CPU time of each cycle's work (median,
+    p99, max, ms); the wall time also counts the time the thread waited for a CPU.
+    """
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+    from kraft_master_driver.core.kinematics import forward_and_jacobian_entries
+
+    scheduler = _set_fifo(priority)
+    theta = [0.1, 0.2, -0.3, 0.4, -0.5, 0.6]
+    times = []
+    for _ in range(200):
+        start = time.perf_counter_ns()
+        forward_and_jacobian_entries(theta)
+        times.append(time.perf_counter_ns() - start)
+    calls = max(1, round(work_us * 1e3 / sorted(times)[len(times) // 2]))
+    wall, cpu = [], []
+    machine_start = cpu_times()
+    pacer = Pacer(rate_hz, seconds)
+    for _deadline in pacer:
+        start, start_cpu = time.monotonic_ns(), time.thread_time_ns()
+        for _ in range(calls):
+            forward_and_jacobian_entries(theta)
+        wall.append(time.monotonic_ns() - start)
+        cpu.append(time.thread_time_ns() - start_cpu)
+        pacer.skip_to(time.monotonic_ns())
+    return {
+        'rate_hz': rate_hz,
+        'scheduler': scheduler,
+        'cycles_per_s': len(wall) / pacer.elapsed_s(),
+        'calls_per_cycle': calls,
+        'work_wall_ms': _percentiles_ms(wall),
+        'work_cpu_ms': _percentiles_ms(cpu),
+        'cpu_steal': steal_fraction(machine_start, cpu_times()),
+    }
+
+
 def _read_exactly(fd, size):
     data = b''
     while len(data) < size:
@@ -191,15 +241,18 @@ def _percentiles_ms(values_ns):
 
 
 def main():
-    """Print pace_nothing()'s or pace_pty_exchange()'s figures as JSON (their child process)."""
+    """Print pace_nothing()'s, pace_pty_exchange()'s or pace_work()'s figures as JSON."""
     parser = argparse.ArgumentParser(description=pace_nothing.__doc__.strip().splitlines()[0])
     parser.add_argument('rate_hz', type=float)
     parser.add_argument('seconds', type=float)
     parser.add_argument('priority', type=int)
     parser.add_argument('--pty', type=int, nargs=3,
                         metavar=('DEVICE_PRIORITY', 'COMMAND_SIZE', 'REPLY_SIZE'))
+    parser.add_argument('--work-us', type=float)
     args = parser.parse_args()
-    if args.pty:
+    if args.work_us:
+        print(json.dumps(pace_work(args.rate_hz, args.seconds, args.priority, args.work_us)))
+    elif args.pty:
         print(json.dumps(pace_pty_exchange(args.rate_hz, args.seconds, args.priority,
                                            *args.pty)))
     else:
