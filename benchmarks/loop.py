@@ -469,7 +469,7 @@ def describe_slow_flips(figures):
 
 
 def describe_work(work):
-    """The bare work loop's figures in a few words."""
+    """Say the bare work loop's figures in a few words."""
     wall, cpu = work['work_wall_ms'], work['work_cpu_ms']
     return (f'{wall["median"]:.3f} / {wall["p99"]:.3f} / {wall["max"]:.3f}, '
             f'{cpu["median"]:.3f} / {cpu["p99"]:.3f}')
