@@ -25,11 +25,11 @@ import shutil
 import signal
 import subprocess
 
+from kraft_master_driver.core.control_loop import LOOP_THREAD
+from kraft_master_driver.simulation.serving import SERVING_THREAD
 import numpy as np
 
 SLOW_GAP_MS = 1.25
-# The threads followed, by their names (nodes.driver.LOOP_THREAD, simulation.serving).
-LOOP_THREAD, SERVING_THREAD = 'kraft_loop', 'kraft_sim'
 RUNNING, WAITING = 'running', 'waiting for a CPU'
 _SAMPLE = re.compile(r'^\s*(?P<comm>.*?)\s+(?P<pid>-?\d+)/(?P<tid>\d+)\s+\[(?P<cpu>\d+)\]\s+'
                      r'(?P<time>\d+)\.(?P<ns>\d{9}):\s+sched:(?P<event>\w+):\s+(?P<trace>.*)$')

@@ -23,6 +23,9 @@ from kraft_master_driver.core.loop_statistics import LoopStatistics
 import numpy as np
 
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
+# The name of the thread the driver runs the loop in, in ps -L and top as in Python
+# (benchmarks/loop.py --sched-trace finds it by it).
+LOOP_THREAD = 'kraft_loop'
 
 
 class Estimate(NamedTuple):

@@ -14,7 +14,7 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
-from kraft_master_driver.core.control_loop import ControlLoop
+from kraft_master_driver.core.control_loop import ControlLoop, LOOP_THREAD
 from kraft_master_driver.core.force_reflection import BASE_FRAME, ForceReflection, WRIST_FRAME
 from kraft_master_driver.core.loop_statistics import VelocityFilter
 from kraft_master_driver.core.passivity import MasterPort
@@ -31,9 +31,6 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger
 
-# The loop thread's name, in ps -L and top as in Python (benchmarks/loop.py --sched-trace finds
-# it by it).
-LOOP_THREAD = 'kraft_loop'
 DIAGNOSTIC_LEVELS = {driver_diagnostics.OK: DiagnosticStatus.OK,
                      driver_diagnostics.WARN: DiagnosticStatus.WARN,
                      driver_diagnostics.ERROR: DiagnosticStatus.ERROR}
