@@ -6,6 +6,7 @@ A command run under a subreaper: every process it starts is waited for, whoever 
 When the command dies (SIGKILL, SIGTERM), what it started becomes the subreaper's child instead
 of init's, so that each one's exit code can still be told and none is left unseen.
 """
+from glob import glob
 import os
 import signal
 import subprocess
@@ -34,6 +35,39 @@ while True:
 """
 
 
+def _read(path):
+    try:
+        with open(path) as file:
+            return file.read()
+    except OSError:  # the process or thread has just ended
+        return ''
+
+
+def descendants(pid):
+    """Return the ids of the processes that `pid` started, and theirs, still running."""
+    found = []
+    parents = [pid]
+    while parents:
+        parent = parents.pop()
+        for children in glob(f'/proc/{parent}/task/*/children'):
+            for child in map(int, _read(children).split()):
+                found.append(child)
+                parents.append(child)
+    return found
+
+
+def describe(pid):
+    """Return a line on a running process: its command, and each thread's state and wait."""
+    command = _read(f'/proc/{pid}/cmdline').replace('\0', ' ').strip()
+    threads = []
+    for task in sorted(glob(f'/proc/{pid}/task/*')):
+        # stat: "tid (name) state ..."; wchan: the kernel function a sleeping thread waits in.
+        name, _, rest = _read(f'{task}/stat').rpartition(')')
+        threads.append(f"{name.partition('(')[2]} {rest.split()[0] if rest else '?'} "
+                       f"{_read(f'{task}/wchan') or '-'}")
+    return f"{pid} {command[:200]} [threads: {', '.join(threads)}]"
+
+
 class Reaped:
     """`command` started by a subreaper, with its output in `log_path`."""
 
@@ -50,8 +84,17 @@ class Reaped:
         return self.log_path.read_text()
 
     def exits(self, timeout=WAIT_S):
-        """Wait until every process the command started has ended; return {pid: exit code}."""
-        output, _ = self.subreaper.communicate(timeout=timeout)
+        """
+        Wait until every process the command started has ended; return {pid: exit code}.
+
+        If some have not ended in `timeout` seconds, fail with what each of them is doing.
+        """
+        try:
+            output, _ = self.subreaper.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            still_running = [describe(pid) for pid in descendants(self.subreaper.pid)]
+            raise AssertionError(f'still running after {timeout:.0f} s: '
+                                 + '; '.join(still_running)) from None
         return {int(pid): int(code) for pid, code in (line.split() for line in
                                                       output.splitlines())}
 
