@@ -62,16 +62,37 @@ def executable(prefix, name):
     return path
 
 
-class RosClient:
+class ClientNode:
+    """A node of the test's process, with a context and an executor of its own."""
+
+    def __init__(self, domain_id, name, namespace='/'):
+        """Join DDS domain `domain_id` as node `name` in `namespace`."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node(name, namespace=namespace, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin(self, seconds=0.0):
+        """Process callbacks for about `seconds` (at least once)."""
+        deadline = time.monotonic() + seconds
+        self.executor.spin_once(timeout_sec=0.01)
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def close(self):
+        """Leave the domain."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+class RosClient(ClientNode):
     """Subscribes to one driver's state, publishes wrenches, calls its services."""
 
     def __init__(self, domain_id, namespace='/', history=2000):
         """Join DDS domain `domain_id` and listen to the driver in `namespace`."""
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('test_client', namespace=namespace, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__(domain_id, 'test_client', namespace)
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         self.joint_states, self.poses, self.pots = (
             self._record(msg_type, topic, history, reliable)
@@ -93,13 +114,6 @@ class RosClient:
         messages = collections.deque(maxlen=history)
         self.node.create_subscription(msg_type, topic, lambda msg: messages.append(msg), qos)
         return messages
-
-    def spin(self, seconds=0.0):
-        """Process callbacks for about `seconds` (at least once)."""
-        deadline = time.monotonic() + seconds
-        self.executor.spin_once(timeout_sec=0.01)
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.01)
 
     def wait(self, condition, timeout=WAIT_S):
         """Spin until `condition()` is truthy."""
@@ -138,12 +152,6 @@ class RosClient:
         future = self.enable_client.call_async(SetBool.Request(data=enabled))
         self.wait(future.done)
         return future.result()
-
-    def close(self):
-        """Leave the domain."""
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 class DriverProcess:

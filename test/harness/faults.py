@@ -28,11 +28,10 @@ from typing import Callable, NamedTuple
 
 from diagnostic_msgs.msg import DiagnosticArray
 from harness import dds_shm
-from harness.driver import DriverProcess, installed_env, next_domain_id, wait_for, WAIT_S
+from harness.driver import (ClientNode, DriverProcess, installed_env, next_domain_id, wait_for,
+                            WAIT_S)
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -211,37 +210,6 @@ class WrenchSource:
                 dds_shm.end(self.process)
 
 
-class Observer:
-    """
-    A client node in this process with only what the suite needs.
-
-    Lighter than harness.driver.RosClient, whose three 200 Hz subscriptions would compete
-    with the simulator thread of this process.
-    """
-
-    def __init__(self, domain_id, namespace):
-        """Join DDS domain `domain_id`, in `namespace`."""
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('fault_observer', namespace=namespace,
-                                      context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def spin(self, seconds=0.0):
-        """Process callbacks for about `seconds` (at least once)."""
-        deadline = time.monotonic() + seconds
-        self.executor.spin_once(timeout_sec=0.01)
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def close(self):
-        """Leave the domain."""
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
 class Diagnostics(NamedTuple):
     """One DiagnosticStatus of the driver."""
 
@@ -288,7 +256,9 @@ class FaultSession:
         self.namespace = f'/faults_{os.getpid()}_{next(SESSION_NUMBERS)}'
         self.simulator = SimulatedKraftMaster(arm='right', operator='hold', record=record)
         self.port = self.simulator.start()
-        self.client = Observer(self.domain_id, self.namespace)
+        # Only what the suite needs: harness.driver.RosClient's three 200 Hz subscriptions
+        # would compete with the simulator thread of this process.
+        self.client = ClientNode(self.domain_id, 'fault_observer', self.namespace)
         self.states = 0
         self.client.node.create_subscription(
             JointState, 'joint_states', self._count_state,

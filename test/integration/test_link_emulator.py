@@ -12,12 +12,12 @@ import time
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm, REPO
 from harness.driver import (
-    DriverProcess, executable as executable_path, installed_env, next_domain_id, wait_for)
+    ClientNode, DriverProcess, executable as executable_path, installed_env, next_domain_id,
+    wait_for)
 from kraft_master_driver.nodes.link_emulator import PARAMETERS, parse_relay
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 
@@ -40,16 +40,12 @@ def test_bad_relay_specs_raise(spec):
 
 # -- the node between two domains ----------------------------------------------------------
 
-class Side:
+class Side(ClientNode):
     """A node of the test in one DDS domain, spun by its own thread."""
 
     def __init__(self, domain_id):
         """Join `domain_id`."""
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('link_test', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__(domain_id, 'link_test')
         self._stopping = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
@@ -70,9 +66,7 @@ class Side:
         """
         self._stopping.set()
         self.thread.join(timeout=5.0)
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        super().close()
 
 
 class Arrivals:

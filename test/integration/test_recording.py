@@ -13,7 +13,8 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm
-from harness.driver import DriverProcess, executable, installed_env, next_domain_id, wait_for
+from harness.driver import (ClientNode, DriverProcess, executable, installed_env, next_domain_id,
+                            wait_for)
 from harness.type_hashes import generated_type_hash
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, DRIVER_TOPICS, JOINT_STATE, POSE_STAMPED, typestore)
@@ -28,7 +29,6 @@ from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.topic_endpoint_info import TopicEndpointInfo
 from rosbags.rosbag2 import Reader
@@ -58,28 +58,18 @@ def offered_qos(info):
         avoid_ros_namespace_conventions=qos.avoid_ros_namespace_conventions)
 
 
-class LiveRecorder:
+class LiveRecorder(ClientNode):
     """A node in this process that records raw messages into one bag per storage plugin."""
 
     def __init__(self, domain_id, directory):
         """Join the domain; nothing is recorded until start()."""
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node('session_recorder', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__(domain_id, 'session_recorder')
         self.wrench_pub = self.node.create_publisher(WrenchStamped, '/wrench', RELIABLE)
         self.bags = {storage: directory / storage for storage in STORAGES}
         self.recorders = [BagRecorder(path, storage)
                           for storage, path in self.bags.items()]
         self.received = {topic: [] for topic in TOPICS}
         self.offered = {}
-
-    def spin(self, seconds):
-        """Process callbacks for about `seconds`."""
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.005)
 
     def start(self):
         """Wait for the driver's publishers, then subscribe to every topic, raw."""
@@ -115,9 +105,7 @@ class LiveRecorder:
         """Close the bags and leave the domain."""
         for recorder in self.recorders:
             recorder.close()
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
+        super().close()
 
 
 @pytest.fixture(scope='module')
