@@ -11,6 +11,9 @@ A stop signal can also come while the process is still importing its modules (2 
 machine): a launch stopped early, a second Ctrl-C. Python's defaults would end it with a
 KeyboardInterrupt traceback (SIGINT) or kill it (SIGTERM, SIGHUP); remember_stop_signals() has
 it remembered instead, so that the node, once its own handlers are in, stops as asked.
+
+A process started with SIGHUP ignored (`nohup`) was asked to outlive its terminal: SIGHUP is then
+not among its stop signals, and stays ignored.
 """
 import ctypes
 import os
@@ -18,7 +21,9 @@ import signal
 import sys
 
 PR_SET_PDEATHSIG = 1  # from linux/prctl.h
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+STOP_SIGNALS = tuple(
+    signum for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    if signum != signal.SIGHUP or signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN)
 _remembered = []
 
 

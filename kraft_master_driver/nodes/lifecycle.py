@@ -8,12 +8,12 @@ file, the line and the fault), turns every refusal into one line on stderr and e
 ends the process if its shutdown hangs.
 
 However a node is asked to stop, it stops the same way and exits 0: SIGINT (Ctrl-C), SIGTERM
-(systemd, docker stop, a launch), SIGHUP (its terminal closed), and the SIGTERM the kernel sends
-when its parent dies (core.process.stop_with_parent). The first of these ends the spin; those
-that follow are ignored, so that a second Ctrl-C cannot cut short the node's own stop (the
-driver's zero-torque command, the closing of its port and of its simulator). A stop signal
-that came while the console script was still importing the node (nodes.commands) ends it
-before it starts anything.
+(systemd, docker stop, a launch), SIGHUP (its terminal closed, unless it was started under
+`nohup`), and the SIGTERM the kernel sends when its parent dies (core.process.stop_with_parent).
+The first of these ends the spin; those that follow are ignored, so that a second Ctrl-C cannot
+cut short the node's own stop (the driver's zero-torque command, the closing of its port and of
+its simulator). A stop signal that came while the console script was still importing the node
+(nodes.commands) ends it before it starts anything.
 """
 import contextlib
 import faulthandler
@@ -24,7 +24,8 @@ import signal
 import sys
 import threading
 
-from kraft_master_driver.core.process import stop_signal_remembered, stop_with_parent
+from kraft_master_driver.core.process import (
+    stop_signal_remembered, STOP_SIGNALS, stop_with_parent)
 from kraft_master_driver.nodes.parameters import ParameterError, read_params_file, usage
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -139,21 +140,20 @@ class StopRequest:
     a wake-up pipe) and sends it on as SIGTERM.
     """
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
     def __init__(self):
         """Install the handlers (before rclpy.init, which calls them from its own)."""
         self.received = False
         self._raising = False
-        for signum in self.SIGNALS:
+        for signum in STOP_SIGNALS:
             signal.signal(signum, self._on_signal)
         if stop_signal_remembered():
             self.received = True
-        read_end, write_end = os.pipe()
-        os.set_blocking(write_end, False)
-        signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
-        threading.Thread(target=self._hangup_as_sigterm, args=(read_end,), name='sighup',
-                         daemon=True).start()
+        if signal.SIGHUP in STOP_SIGNALS:
+            read_end, write_end = os.pipe()
+            os.set_blocking(write_end, False)
+            signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
+            threading.Thread(target=self._hangup_as_sigterm, args=(read_end,), name='sighup',
+                             daemon=True).start()
 
     def raise_from_now_on(self):
         """Raise KeyboardInterrupt for the first signal, now if it has come already."""
@@ -173,7 +173,7 @@ class StopRequest:
     def ignore_from_now_on(self):
         """Ignore the signals: the interpreter's exit would restore their default, fatal one."""
         self.received = True
-        for signum in self.SIGNALS:
+        for signum in STOP_SIGNALS:
             signal.signal(signum, signal.SIG_IGN)
 
     def _on_signal(self, _signum, _frame):

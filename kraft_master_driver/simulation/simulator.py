@@ -31,7 +31,7 @@ import time
 
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
-from kraft_master_driver.core.process import stop_with_parent
+from kraft_master_driver.core.process import STOP_SIGNALS, stop_with_parent
 from kraft_master_driver.link.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec)
 from kraft_master_driver.simulation.electronics import COUPLINGS, Electronics
@@ -336,7 +336,7 @@ def main(argv=None):
     # this thread holds the Event's lock inside wait() (a full test run once hung so).
     stop = []
     handlers = {signum: signal.signal(signum, lambda signum, _frame: stop.append(signum))
-                for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+                for signum in STOP_SIGNALS}
     stop_with_parent()
     try:
         with simulator:

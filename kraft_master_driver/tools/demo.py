@@ -28,6 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.process import STOP_SIGNALS
 from kraft_master_driver.nodes.arm_sim import PARAMETERS as MUJOCO_ARM_PARAMETERS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
@@ -82,7 +83,6 @@ ENGAGE_DISTANCE = 0.005  # m from HOME within which the demo enables the bridge
 START_TIMEOUT = 60.0  # s for the driver, the bridge and the arm to come up and be enabled
 REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
 ENGAGE_REFRESH = 0.02  # s between looks at the master's pose until the bridge is enabled
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 EMULATOR = [sys.executable, '-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
             '-p', 'to_slave.topics:=[pose, master_energy]',
             '-p', 'to_master.topics:=[wrench, slave_energy]']
@@ -339,8 +339,8 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
     simulator = subprocess.Popen(SIMULATOR, stdout=subprocess.PIPE, text=True, **child)
     processes = [simulator]
     screen = Screen(out)
-    # SIGTERM and SIGHUP (a closed terminal) stop the demo as Ctrl-C does, and Ctrl-C stops it
-    # even where it came ignored (a shell's background job ignores it).
+    # SIGTERM and SIGHUP (a closed terminal, unless under nohup) stop the demo as Ctrl-C does,
+    # and Ctrl-C stops it even where it came ignored (a shell's background job ignores it).
     previous = {signum: signal.signal(signum, _stop_on_signal) for signum in STOP_SIGNALS}
     readout = None
     try:

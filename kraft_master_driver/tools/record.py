@@ -23,7 +23,7 @@ import time
 
 from kraft_master_driver.bag.common import DRIVER_TOPICS, SessionError, typestore
 from kraft_master_driver.bag.recorder import BagRecorder, qos_profile, STORAGES
-from kraft_master_driver.core.process import stop_with_parent
+from kraft_master_driver.core.process import STOP_SIGNALS, stop_with_parent
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -171,7 +171,7 @@ def main(argv=None):
     topics = (None if args.all else
               sorted({'/' + t.lstrip('/') for t in args.topics}) or driver_topics(args.namespace))
     stop = []
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+    for signum in STOP_SIGNALS:
         signal.signal(signum, lambda signum, _frame: stop.append(signum))
     stop_with_parent()
     try:

@@ -18,7 +18,7 @@ import threading
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm, REPO
-from harness.driver import next_domain_id, wait_for
+from harness.driver import AT_A_TERMINAL, next_domain_id, wait_for
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
@@ -98,6 +98,7 @@ class Demo:
                    '--duration', str(duration), *(['--arm', arm] if arm else [])]
         if sigint_ignored:
             command = ['sh', '-c', 'trap "" INT; exec "$@"', 'sh', *command]
+        command = [*AT_A_TERMINAL, *command]
         self.process = subprocess.Popen(
             command, cwd=REPO, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True, start_new_session=True)

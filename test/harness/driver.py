@@ -22,6 +22,9 @@ _domain_ids = itertools.count(random.Random(os.getpid()).randrange(20, 180, 10))
 # Seconds a condition may take to come true: a start-up took over 20 s on a machine loaded
 # about 15 times over its cores. Only a failing wait lasts this long.
 WAIT_S = 120.0
+# A command started as a shell at a terminal starts it, with SIGHUP at its default, also when the
+# tests themselves run under nohup: a node keeps an inherited, ignored SIGHUP ignored.
+AT_A_TERMINAL = ('env', '--default-signal=HUP')
 
 
 def next_domain_id():
@@ -160,7 +163,7 @@ class DriverProcess:
     def __init__(self, prefix, domain_id, parameters=(), namespace=None, params_file=None,
                  name='kraft_master_node', wrapper=()):
         """Start `wrapper` + executable `name` with `-p name:=value` for each of `parameters`."""
-        command = [*wrapper, str(executable(prefix, name)), '--ros-args']
+        command = [*AT_A_TERMINAL, *wrapper, str(executable(prefix, name)), '--ros-args']
         if namespace:
             command += ['-r', f'__ns:={namespace}']
         if params_file:

@@ -13,7 +13,7 @@ import subprocess
 import sys
 
 from harness import dds_shm
-from harness.driver import WAIT_S
+from harness.driver import AT_A_TERMINAL, WAIT_S
 
 PR_SET_CHILD_SUBREAPER = 36  # linux/prctl.h
 
@@ -75,7 +75,7 @@ class Reaped:
         """Start it; `pid` is the command's process id, also its process group's."""
         self.log_path = log_path
         self.subreaper = subprocess.Popen(
-            [sys.executable, '-c', SUBREAPER, str(log_path), *command], env=env,
+            [sys.executable, '-c', SUBREAPER, str(log_path), *AT_A_TERMINAL, *command], env=env,
             stdout=subprocess.PIPE, text=True)
         self.pid = int(self.subreaper.stdout.readline())
 

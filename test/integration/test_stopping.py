@@ -6,7 +6,7 @@ However the installed driver is ended, it ends the same way (issue 20).
 SIGINT once or twice, SIGTERM, SIGHUP, and its parent's death (SIGKILL or SIGTERM to the parent,
 as a launch or `ros2 run` that dies without stopping its children): the device's last command
 is zero torque, the built-in simulator's pty directory is removed, no process is left, and the
-exit code is 0.
+exit code is 0. Started under nohup, it outlives a SIGHUP.
 """
 import os
 import pathlib
@@ -14,10 +14,12 @@ import re
 import signal
 import subprocess
 import sys
+import time
 
 from harness import dds_shm
-from harness.driver import (
-    DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for, WAIT_S)
+from harness.driver import (AT_A_TERMINAL, DriverProcess, executable, installed_env,
+                            next_domain_id, RosClient, wait_for, WAIT_S)
+from harness.reaper import descendants
 from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
 import pytest
 
@@ -67,21 +69,16 @@ def send(process, signals):
         process.send_signal(sig)
 
 
-def descendants(pid):
-    """Return the ids of the processes whose parent is `pid`, theirs, and so on (Linux /proc)."""
-    children = pathlib.Path(f'/proc/{pid}/task/{pid}/children')
-    try:
-        found = [int(child) for child in children.read_text().split()]
-    except FileNotFoundError:
-        return []
-    return found + [grandchild for child in found for grandchild in descendants(child)]
+def signal_mask(pid, field):
+    """Return the set of signals in field `field` (SigCgt, SigIgn) of /proc/`pid`/status."""
+    status = pathlib.Path(f'/proc/{pid}/status').read_text()
+    mask = int(re.search(rf'^{field}:\s*(\w+)', status, re.MULTILINE)[1], 16)
+    return {sig for sig in signal.Signals if mask >> (sig - 1) & 1}
 
 
 def takes_stop_signals(pid):
-    """Return True once process `pid` has handlers of its own for SIGTERM and SIGHUP (/proc)."""
-    status = pathlib.Path(f'/proc/{pid}/status').read_text()
-    caught = int(re.search(r'^SigCgt:\s*(\w+)', status, re.MULTILINE)[1], 16)
-    return all(caught >> (sig - 1) & 1 for sig in (signal.SIGTERM, signal.SIGHUP))
+    """Return True once process `pid` has handlers of its own for SIGTERM and SIGHUP."""
+    return {signal.SIGTERM, signal.SIGHUP} <= signal_mask(pid, 'SigCgt')
 
 
 class Running:
@@ -166,12 +163,34 @@ def test_a_stop_signal_while_the_driver_starts_ends_it_with_exit_0(install_prefi
         driver.kill()
 
 
+def test_a_driver_started_under_nohup_outlives_a_sighup_and_stops_on_sigterm(install_prefix):
+    running = Running(install_prefix, start_driver=False)
+    running.driver = DriverProcess(install_prefix, running.domain_id, running.parameters,
+                                   wrapper=('nohup',))
+    try:
+        running.command_torque()
+        pid = running.driver.process.pid
+        assert signal.SIGTERM in signal_mask(pid, 'SigCgt')
+        assert signal.SIGHUP in signal_mask(pid, 'SigIgn')
+        hangup_ns = time.time_ns()
+        running.driver.process.send_signal(signal.SIGHUP)
+        # The device is still commanded a second after the hangup: the loop went on.
+        wait_for(lambda: running.simulator.received[-1][0] > hangup_ns + 1_000_000_000)
+        assert running.driver.process.poll() is None
+        code, output = running.driver.interrupt(signal.SIGTERM)
+        assert code == 0, output
+        assert 'Traceback' not in output, output
+        wait_for(lambda: not any(running.last_command()), timeout=WAIT_S)
+    finally:
+        running.close()
+
+
 class Orphaning:
     """The driver started by a parent that a subreaper started: the parent can be killed."""
 
     def __init__(self, prefix, domain_id, parameters, log_path):
         """Start the chain; read the parent's and the driver's ids."""
-        command = [str(executable(prefix, 'kraft_master_node')), '--ros-args']
+        command = [*AT_A_TERMINAL, str(executable(prefix, 'kraft_master_node')), '--ros-args']
         for name, value in parameters:
             command += ['-p', f'{name}:={value}']
         self.reaper = subprocess.Popen(
