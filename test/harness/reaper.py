@@ -58,14 +58,16 @@ def descendants(pid):
 
 def describe(pid):
     """Return a line on a running process: its command, and each thread's state and wait."""
-    command = _read(f'/proc/{pid}/cmdline').replace('\0', ' ').strip()
+    # Each argument on one line and short: a `python -c` script would fill the message.
+    command = ' '.join(' '.join(argument.split())[:60]
+                       for argument in _read(f'/proc/{pid}/cmdline').split('\0') if argument)
     threads = []
     for task in sorted(glob(f'/proc/{pid}/task/*')):
         # stat: "tid (name) state ..."; wchan: the kernel function a sleeping thread waits in.
         name, _, rest = _read(f'{task}/stat').rpartition(')')
         threads.append(f"{name.partition('(')[2]} {rest.split()[0] if rest else '?'} "
                        f"{_read(f'{task}/wchan') or '-'}")
-    return f"{pid} {command[:200]} [threads: {', '.join(threads)}]"
+    return f"{pid} {command} [threads: {', '.join(threads)}]"
 
 
 class Reaped:
