@@ -18,7 +18,7 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.link import cdr
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
@@ -40,10 +40,11 @@ TWIST_STAMPED = cdr.StampedDoublesDecoder('TwistStamped', 6)
 _GAINS, _TABLE, _SENSOR = Gains(), Table(), SensorModel()
 
 PARAMETERS = {
-    'publish_rate_hz': Spec(500.0, 'Rate of measured_cp, measured_cf and measured_js (Hz); the '
-                            'physics always steps at 1 kHz.', low=1.0, high=1000.0),
-    'arm_frame': Spec('base_link', 'frame_id of servo_cp, servo_cv and measured_cp: the '
-                      "arm's base frame."),
+    'publish_rate_hz': Spec(500.0, 'Rate of measured_cp, measured_cf, measured_js and '
+                            'table_force (Hz); the physics always steps at 1 kHz.', low=1.0,
+                            high=1000.0),
+    'arm_frame': Spec('base_link', 'frame_id of servo_cp, servo_cv, measured_cp and '
+                      "table_force: the arm's base frame."),
     'ft_frame': Spec('ft_sensor', 'frame_id of measured_cf: the F/T sensor at the flange, '
                      'turned as the tool frame.'),
     'command_timeout': Spec(0.1, 'An older servo_cp or servo_cv holds the arm where it is '
@@ -109,10 +110,12 @@ class ArmSimNode(Node):
         self.pose_pub = self.create_publisher(PoseStamped, 'measured_cp', reliable)
         self.wrench_pub = self.create_publisher(WrenchStamped, 'measured_cf', reliable)
         self.joints_pub = self.create_publisher(JointState, 'measured_js', reliable)
+        self.table_pub = self.create_publisher(Vector3Stamped, 'table_force', reliable)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
         self._pose_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 7)
         self._wrench_cdr = cdr.StampedDoublesEncoder(config['ft_frame'], 6)
         self._joints_cdr = cdr.JointStateEncoder('', JOINT_NAMES, (7, 7, 7))
+        self._table_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 3)
         self._pose_sub = self._taken_by_ticks(PoseStamped, 'servo_cp', self._on_servo_cp)
         self._twist_sub = self._taken_by_ticks(TwistStamped, 'servo_cv', self._on_servo_cv)
         self._refusals = 0
@@ -224,14 +227,16 @@ class ArmSimNode(Node):
         arm = self.arm
         sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
         position = arm.tool_position()
+        table_force = arm.table_contact_force()
         # For the diagnostics, which run in the executor's thread.
-        self._snapshot = (position, arm.table_contact_force(), arm.holding)
+        self._snapshot = (position, table_force, arm.holding)
         self.pose_pub.publish(self._pose_cdr.encode(
             sec, nanosec, [*position.tolist(), *arm.tool_quaternion()]))
         self.wrench_pub.publish(self._wrench_cdr.encode(sec, nanosec, arm.wrench().tolist()))
         self.joints_pub.publish(self._joints_cdr.encode(
             sec, nanosec, arm.joint_positions().tolist(), arm.joint_velocities().tolist(),
             arm.torque.tolist()))
+        self.table_pub.publish(self._table_cdr.encode(sec, nanosec, table_force.tolist()))
 
     def _publish_diagnostics(self):
         """Publish the real-time factor, the cost of a step and the arm's state, at 1 Hz."""

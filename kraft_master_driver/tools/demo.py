@@ -25,7 +25,7 @@ import tempfile
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.process import STOP_SIGNALS
@@ -123,8 +123,8 @@ class Readout:
         """
         Subscribe to the driver's state and diagnostics, the arm's pose, the bridge's state.
 
-        `mujoco`: the arm is the MuJoCo Panda, whose diagnostics (on the bridge's domain) tell
-        the table's force on its hand.
+        `mujoco`: the arm is the MuJoCo Panda, which also publishes the table's force on its
+        hand (table_force, on the bridge's domain).
         """
         self.mujoco = mujoco
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C is ours
@@ -139,7 +139,6 @@ class Readout:
         self.executor.add_node(self.enabler)
         self.latest = {}
         self.driver_status = {}
-        self.arm_status = {}
         state_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._subscriptions = [
@@ -154,7 +153,7 @@ class Readout:
                 (self.node, DiagnosticArray, '/diagnostics', 10, None),
                 (self.arm_node, PoseStamped, 'measured_cp', 1, None),
                 (self.arm_node, String, 'operating_state', 1, state_qos),
-                *([(self.arm_node, DiagnosticArray, '/diagnostics', 10, None)] if mujoco
+                *([(self.arm_node, Vector3Stamped, 'table_force', 1, None)] if mujoco
                   else []))]
 
     def take(self):
@@ -169,11 +168,8 @@ class Readout:
 
     def _keep_statuses(self, array):
         for status in array.status:
-            name, _, what = status.name.partition(': ')
-            if name.rpartition('/')[2] == DRIVER_NAME:
+            if status.name.partition(': ')[0].rpartition('/')[2] == DRIVER_NAME:
                 self.driver_status = {kv.key: kv.value for kv in status.values}
-            elif what == 'simulated arm':
-                self.arm_status = {kv.key: kv.value for kv in status.values}
 
     def bridge_state(self):
         """Return the bridge's operating state ('ENABLED', ...), or None before it came."""
@@ -213,12 +209,12 @@ class Readout:
         link_errors = sum(int(status.get(f'link {k}', 0)) for k in (
             'timeouts', 'bad_crc', 'garbage_bytes', 'truncated', 'link_faults'))
         if self.mujoco:
+            table = latest['/table_force'].vector if '/table_force' in latest else None
             arm_lines = [
                 f'Panda (mm)        {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} {1e3 * arm.z:7.1f}'
                 f'   (table top at z = {1e3 * TABLE_Z:.1f})',
-                'table on hand (N)   ' + ' '.join(
-                    f'{float(v):7.2f}' for v in self.arm_status['table contact force (N)']
-                    .split(', ')) if self.arm_status else 'table on hand (N) -']
+                'table on hand (N)   ' + (f'{table.x:7.2f} {table.y:7.2f} {table.z:7.2f}'
+                                          if table else '-')]
         else:
             arm_lines = [f'arm (mm)          {1e3 * arm.x:7.1f} {1e3 * arm.y:7.1f} '
                          f'{1e3 * arm.z:7.1f}   (wall at z = {1e3 * WALL_Z:.1f})']

@@ -5,7 +5,7 @@ import collections
 import signal
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from harness.driver import DriverProcess, next_domain_id, RosClient, vector_parameter
 from kraft_master_driver.simulation.arm_physics import PandaArm, Table
 import numpy as np
@@ -34,6 +34,12 @@ def force(msg):
     return np.array((f.x, f.y, f.z))
 
 
+def table_force(msg):
+    """Return the vector of a Vector3Stamped (the arm's table_force) as an array."""
+    v = msg.vector
+    return np.array((v.x, v.y, v.z))
+
+
 class Master:
     """A stand-in master: publishes `pose`, hears `wrench`, the arm's topics and the bridge."""
 
@@ -42,13 +48,14 @@ class Master:
         self.client = RosClient(domain_id)
         node = self.client.node
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.measured_cp, self.measured_cf, self.measured_js, self.wrenches, self.states = (
-            collections.deque(maxlen=2000) for _ in range(5))
+        (self.measured_cp, self.measured_cf, self.measured_js, self.table_force, self.wrenches,
+         self.states) = (collections.deque(maxlen=2000) for _ in range(6))
         self.diagnostics = collections.deque(maxlen=20)
         for msg_type, topic, queue in (
                 (PoseStamped, 'measured_cp', self.measured_cp),
                 (WrenchStamped, 'measured_cf', self.measured_cf),
                 (JointState, 'measured_js', self.measured_js),
+                (Vector3Stamped, 'table_force', self.table_force),
                 (WrenchStamped, 'wrench', self.wrenches),
                 (DiagnosticArray, '/diagnostics', self.diagnostics)):
             node.create_subscription(msg_type, topic, lambda m, q=queue: q.append(m), reliable)
@@ -167,6 +174,7 @@ def test_the_arm_follows_the_master_and_the_table_pushes_back(chain):
     master.move((0.05, 0.03, 0.0))
     reached = master.arm_settled(near=start + (0.05, 0.03, 0.0), within=0.004)
     assert np.linalg.norm(force(master.wrenches[-1])) < 0.5
+    assert not any(table_force(master.table_force[-1]))
 
     # Down onto the table (its top 37 mm below the fingertips) and 2 cm past it: the table
     # stops the arm, and its push comes back to the master, up.
@@ -186,6 +194,10 @@ def test_the_arm_follows_the_master_and_the_table_pushes_back(chain):
     # The impedance's spring across the 2 cm the target is past the table, 400 N/m.
     assert felt[2] == pytest.approx(8.0, rel=0.25)
     assert np.linalg.norm(felt[:2]) < 0.3 * felt[2]
+    # What the physics says the table pushes with: what the master felt, less the hand's
+    # residual weight and inertia on the sensor.
+    assert master.table_force[-1].header.frame_id == 'base_link'
+    assert table_force(master.table_force[-1])[2] == pytest.approx(felt[2], rel=0.15)
 
     # Back up: the contact ends and so does the force.
     master.move((0.0, 0.0, 0.05))
