@@ -91,7 +91,8 @@ class CrtkSession:
         first HELD_STATES states stamped after it in a row without torque (a state without
         torque can also come of a late cycle before the refused input arrived). This client
         may lag the driver by many states: only the stamps say which came after; the states
-        arrive in the order of their stamps.
+        arrive in the order of their stamps, and those stamped before since_ns may still
+        arrive after since_ns is known (since_ns from a diagnostics message that overtook them).
         """
         scan, run_start, end = [None], [None], [None]
 
@@ -99,8 +100,10 @@ class CrtkSession:
             if scan[0] is None:
                 scan[0] = bisect.bisect_right(self.torques, (since_ns, True))
             while scan[0] < len(self.torques):
-                index, torque = scan[0], self.torques[scan[0]][1]
+                index, (stamp, torque) = scan[0], self.torques[scan[0]]
                 scan[0] += 1
+                if stamp <= since_ns:
+                    continue  # it arrived after since_ns was known, but was sent before
                 if refused:
                     end[0] = index
                     return True
