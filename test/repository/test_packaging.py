@@ -332,3 +332,38 @@ def test_without_python_make_says_what_to_install(checkout):
     assert result.stdout == ('make: no no-such-python3: install Python 3.11 or newer '
                              '(Debian/Ubuntu: sudo apt install python3 python3-venv)\n')
     assert not (checkout / '.venv').exists()
+
+
+def pip_installs(directory, *args):
+    """Return the `pip install -r` commands `make -n ARGS` would run in `directory`."""
+    result = make(directory, '-n', *args)
+    assert result.returncode == 0, result.stderr
+    commands = re.findall(r'(\S+ -m pip install .* -r .*?)(?:&&|$)', result.stdout, re.MULTILINE)
+    return [command.strip() for command in commands]
+
+
+@pytest.mark.parametrize('target', ['demo', 'test'])
+def test_make_installs_the_pinned_versions(checkout, target):
+    installs = pip_installs(checkout, target)
+    assert installs
+    assert all(line.endswith('--constraint constraints.txt') for line in installs), installs
+
+
+def test_make_test_latest_installs_the_newest_into_a_venv_of_its_own(checkout):
+    installs = pip_installs(checkout, 'test-latest')
+    assert installs
+    assert all(line.startswith('.venv-latest/bin/python -m pip install') for line in installs)
+    assert not any('--constraint' in line for line in installs), installs
+
+
+def test_make_lock_pins_the_version_of_everything_the_requirements_install(checkout):
+    venv = pathlib.Path(sys.prefix)
+    stamps = [f'--old-file={venv}/.installed-{stamp}' for stamp in ('requirements-dev', 'package')]
+    result = make(checkout, *stamps, 'lock', f'VENV={venv}')
+    assert result.returncode == 0, result.stderr
+    lines = (checkout / 'constraints.txt').read_text().splitlines()
+    assert lines[0].startswith('# Made by `make lock`')
+    pins = dict(line.split('==') for line in lines if not line.startswith('#'))
+    assert {name: importlib.metadata.version(name) for name in pins} == pins
+    pinned = {canonicalize_name(name) for name in pins}
+    assert requirements_closure(REPO / 'requirements-dev.txt') - {'kraft-master-driver'} <= pinned
