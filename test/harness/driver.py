@@ -55,6 +55,8 @@ def installed_env(prefix, domain_id):
     env['ROS_DOMAIN_ID'] = str(domain_id)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env['PYTHONUNBUFFERED'] = '1'
+    # A node that dies of a signal (SIGSEGV, SIGABRT) prints every thread's stack first.
+    env['PYTHONFAULTHANDLER'] = '1'
     return env
 
 
