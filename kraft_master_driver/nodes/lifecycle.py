@@ -23,6 +23,7 @@ import re
 import signal
 import sys
 import threading
+import time
 
 from kraft_master_driver.core.process import (
     stop_signal_remembered, STOP_SIGNALS, stop_with_parent)
@@ -34,6 +35,8 @@ from rclpy.signals import install_signal_handlers, SignalHandlerOptions
 import rclpy.utilities
 
 SHUTDOWN_LIMIT_S = 10.0
+# Seconds rclpy's signal thread may take to wake the executors and shut the contexts down.
+RCLPY_SIGNAL_WAIT_S = 5.0
 
 
 def ros_argument_files(argv):
@@ -95,6 +98,7 @@ def run_node(make_node, program, summary, table, args=None):
         with stop_request.deferred():
             executor = rclpy.get_global_executor()
         install_signal_handlers(SignalHandlerOptions.ALL)
+        stop_request.rclpy_handles_signals = True
         node = make_node(params_files)
         # The set-up's objects live as long as the process: leave them out of garbage
         # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
@@ -112,15 +116,11 @@ def run_node(make_node, program, summary, table, args=None):
     finally:
         stop_request.received = True  # from here on, a signal changes nothing
         watchdog = _exit_if_stuck(program, exit_code)
+        if stop_request.seen_by_rclpy:
+            _wait_for_rclpy_signal_thread()
         if node is not None:
             node.destroy_node()
-        try:
-            rclpy.try_shutdown()
-        except _rclpy.RCLError:
-            # rclpy's own signal handler can shut the context down between try_shutdown's
-            # check and its call (a parent's SIGTERM on a loaded machine did).
-            if rclpy.ok():
-                raise
+        try_shutdown()
         watchdog.cancel()
         stop_request.ignore_from_now_on()
     return exit_code
@@ -144,6 +144,8 @@ class StopRequest:
         """Install the handlers (before rclpy.init, which calls them from its own)."""
         self.received = False
         self._raising = False
+        self.rclpy_handles_signals = False
+        self.seen_by_rclpy = False
         for signum in STOP_SIGNALS:
             signal.signal(signum, self._on_signal)
         if stop_signal_remembered():
@@ -179,6 +181,7 @@ class StopRequest:
     def _on_signal(self, _signum, _frame):
         if not self.received:
             self.received = True
+            self.seen_by_rclpy = self.rclpy_handles_signals
             if self._raising:
                 raise KeyboardInterrupt
 
@@ -187,6 +190,32 @@ class StopRequest:
         while int(signal.SIGHUP) not in os.read(read_end, 64):
             pass
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def try_shutdown(context=None):
+    """Shut `context` (the default one if None) down unless it is already."""
+    try:
+        rclpy.try_shutdown(context=context)
+    except _rclpy.RCLError:
+        # rclpy's own signal handler can shut the context down between try_shutdown's
+        # check and its call (a parent's SIGTERM on a loaded machine did).
+        if rclpy.ok(context=context):
+            raise
+
+
+def _wait_for_rclpy_signal_thread():
+    """
+    Wait until rclpy's signal thread has handled the stop signal: the default context is shut.
+
+    That thread triggers every executor's signal guard condition, with no lock, then shuts the
+    contexts down. An executor shut down meanwhile frees its guard condition and the list the
+    thread walks: the link emulator, stopping its second executor, died of SIGSEGV so (1 stop in
+    about 55 with four busy loops on two cores; the thread ran late, after Python's
+    KeyboardInterrupt had started the node's shutdown).
+    """
+    deadline = time.monotonic() + RCLPY_SIGNAL_WAIT_S
+    while rclpy.ok() and time.monotonic() < deadline:
+        time.sleep(0.001)
 
 
 def _exit_if_stuck(program, exit_code):

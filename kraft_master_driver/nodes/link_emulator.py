@@ -26,7 +26,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core.delay_line import DelayLine, LinkModel
-from kraft_master_driver.nodes.lifecycle import run_node
+from kraft_master_driver.nodes.lifecycle import run_node, try_shutdown
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
 from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
@@ -304,11 +304,14 @@ class LinkEmulatorNode(Node):
         # Both threads must have ended before any publisher they use is destroyed.
         self.releaser.stop()
         if self.slave_executor is not None:
-            self.slave_executor.shutdown()
+            # The slave side's spin ends once its context is shut down and it is woken; its
+            # executor goes after it (Executor.shutdown does not wait for the spinning thread,
+            # and destroys the guard conditions that thread waits on).
+            try_shutdown(self.slave_context)
+            self.slave_executor.wake()
             self.slave_thread.join()
-        if self.slave_executor is not None:
+            self.slave_executor.shutdown()
             self.slave_node.destroy_node()
-            rclpy.try_shutdown(context=self.slave_context)
         exit_logger = rclpy.logging.get_logger(f'{self.get_name()}.exit')
         super().destroy_node()
         # A Ctrl-C has shut the context down already, and rosout would refuse the lines with an
