@@ -18,7 +18,8 @@ import time
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm
 from harness.driver import (
-    DriverProcess, next_domain_id, RosClient, slave_process, vector_parameter, WAIT_S)
+    DriverProcess, next_domain_id, RosClient, slave_process, vector_parameter, wait_for,
+    WAIT_S)
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.slave_sim import PARAMETERS, SlaveLimits
 from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
@@ -44,6 +45,11 @@ NORMAL = -np.array([0.0, 1.0, 1.0]) / math.sqrt(2.0)
 WALL_STIFFNESS = PARAMETERS['wall.stiffness'][0]
 LIMITS = SlaveLimits()
 PENETRATION_TOLERANCE = 0.003  # m
+# The client takes messages for this long between two checks of a condition (s): checked after
+# every message, a condition that passes over thousands of them kept the client so far behind,
+# with a busy loop per core, that fewer than 10 of the joint states it kept were one loop
+# period apart.
+CHECK_PERIOD_S = 0.02
 TORQUE_RESOLUTION = 1.5e-3  # N*m: the device's 1 mN*m counts, on th2 the sum of two
 # The bridge: enabled as soon as it can be (the master then rests at home), the point-mass
 # arm's orientation kept, impacts reflected unlimited by it (the driver's force_scale keeps
@@ -154,8 +160,8 @@ class Teleoperation:
                 depth(kinematics.forward(theta, ARM)[:3, 3], self.wall_point))
 
     def wait(self, condition, timeout=WAIT_S):
-        """Spin until `condition()` holds."""
-        return self.client.wait(condition, timeout)
+        """Spin until `condition()` holds, checking it every CHECK_PERIOD_S."""
+        return wait_for(condition, timeout, spin=lambda: self.client.spin(CHECK_PERIOD_S))
 
     def assert_alone(self):
         """Fail clearly if another test's nodes share this DDS domain (they would mix in)."""
@@ -273,8 +279,12 @@ def test_slave_stops_at_the_wall_and_the_master_is_pushed_back(sweeping):
                 > 1.5 / LOOP_RATE_HZ):
             continue
         force = implied_force(kinematics.jacobian(previous.position, ARM), state.effort)
-        assert force @ NORMAL > 0.0, 'the torques must push the wrist out of the wall'
-        assert np.linalg.norm(np.cross(force, NORMAL)) < 0.05 * np.linalg.norm(force) + 0.01
+        pair = (f'states {seconds(state.header.stamp) - seconds(previous.header.stamp):.4f} s '
+                f'apart, {np.abs(np.subtract(state.position, previous.position)).max():.4f} rad '
+                f'apart at most, effort {list(state.effort)}')
+        assert force @ NORMAL > 0.0, f'the torques must push the wrist out of the wall; {pair}'
+        assert np.linalg.norm(np.cross(force, NORMAL)) < 0.05 * np.linalg.norm(force) + 0.01, (
+            f'the torques imply {force.tolist()}, not along the normal; {pair}')
         checked += 1
     assert checked >= 10
 
@@ -292,7 +302,7 @@ def test_pressing_on_the_wall_then_zero_torque_when_the_arm_dies(pressing):
         return len(forces) == 25 and np.abs(forces - push).max() < 1e-6
 
     try:
-        client.wait(pushing_fully)
+        pressing.wait(pushing_fully)
     except AssertionError:
         raise AssertionError(f'no 25 forces in a row at the full push {push}; the last: '
                              f'{pressing.forces()[-25:].tolist()}') from None
