@@ -135,6 +135,7 @@ class Readout:
         self.arm_node = rclpy.create_node('kraft_master_demo_arm', context=self.arm_context)
         self.enabler = rclpy.create_node('kraft_master_demo_enable', context=self.arm_context)
         self.enable_client = self.enabler.create_client(SetBool, 'enable')
+        self._answered = False  # whether the bridge answered an enable call yet
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.arm_context)
         self.executor.add_node(self.enabler)
         self.latest = {}
@@ -184,14 +185,26 @@ class Readout:
         # Every readout line matched first, so that the wrench shows from the first contact.
         if not all(s.get_publisher_count() for s in self._subscriptions):
             return False
+        # The bridge registers the master where it is when the request comes, so the request
+        # must come at once. A first call can come late: the bridge may not have discovered
+        # this client yet (0.1 to 0.45 s here, once 3 s, which registered the master 50 mm
+        # below HOME). So a first call, `enable false`, which leaves a disabled bridge as it
+        # is, opens the way: once it is answered, calls come in a few milliseconds.
+        if not self._answered:
+            self._answered = self._call_enable(False) is not None
+            return False
         p = pose.pose.position
         if np.linalg.norm(np.array([p.x, p.y, p.z]) - HOME) > ENGAGE_DISTANCE:
             return False
-        future = self.enable_client.call_async(SetBool.Request(data=True))
-        self.executor.spin_until_future_complete(future, timeout_sec=10.0)
         # Refused while an input is not fresh yet (the bridge logs why): tried again.
-        response = future.result()
+        response = self._call_enable(True)
         return response is not None and response.success
+
+    def _call_enable(self, data):
+        """Call the bridge's enable with `data`; return its answer, None if none in 10 s."""
+        future = self.enable_client.call_async(SetBool.Request(data=data))
+        self.executor.spin_until_future_complete(future, timeout_sec=10.0)
+        return future.result()
 
     def running(self):
         """Return True once the driver's state and the arm's pose have come."""
