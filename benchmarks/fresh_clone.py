@@ -102,7 +102,8 @@ def main(argv=None):
         else:
             commit = subprocess.run(['git', '-C', str(REPO), 'rev-parse', args.commit],
                                     check=True, capture_output=True, text=True).stdout.strip()
-        print(f'{commit[:7]}, {args.runs} runs of '
+        runs_of = 'a run' if args.runs == 1 else f'{args.runs} runs'
+        print(f'{commit[:7]}, {runs_of} of '
               f'{args.test or ".ci/run in a fresh clone"}, {args.busy_loops} busy loops, '
               f'{os.cpu_count()} cores', flush=True)
         for number in range(1, args.runs + 1):
