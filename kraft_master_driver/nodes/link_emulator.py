@@ -10,8 +10,10 @@ one topic of any message type as serialized bytes (no deserialisation), lets the
 DelayLine (delay_line.py) decide its fate, and publishes the bytes on the other side when due:
 at once from the subscription when nothing is queued and no delay is set, else from one release
 thread that sleeps until the earliest due time. Subscriptions are best effort (they accept any
-publisher; losing a sample is the emulated link's job), publishers reliable depth 10 (a reliable
-publisher reaches reliable and best-effort subscribers alike).
+publisher; losing a sample is the emulated link's job) and keep queue_depth messages, so that a
+busy emulator loses what it cannot take instead of adding a queue's wait to every message; the
+publishers are reliable, depth 10 (a reliable publisher reaches reliable and best-effort
+subscribers alike).
 
 Both directions report counts and the delay they added (received to published) on
 `diagnostics` every second and in the log every 10 s and at exit.
@@ -44,6 +46,8 @@ PARAMETERS = {
     'slave_domain_id': Spec(-1, 'DDS domain of the slave side; -1: the domain of the master '
                             '(then relays must rename their topics).', low=-1, high=232),
     'seed': Spec(-1, 'Seed of the loss and jitter draws; -1: a different one each run.'),
+    'queue_depth': Spec(10, 'Messages each relay keeps while the emulator is busy; older ones '
+                        'are lost, not delayed.', low=1, high=10000),
     'to_slave.topics': Spec(['pose'], 'Topics relayed master -> slave: "name", '
                             '"source:destination" or "source:destination:pkg/msg/Type".'),
     'to_master.topics': Spec(['wrench'], 'Topics relayed slave -> master, as to_slave.topics.'),
@@ -127,9 +131,10 @@ class Releaser(threading.Thread):
 class Relay:
     """One topic carried in one direction: a raw subscription and a publisher of bytes."""
 
-    def __init__(self, spec, source_node, destination_node, line, releaser):
-        """Parse `spec`; the subscription starts once the type is known."""
+    def __init__(self, spec, source_node, destination_node, line, releaser, queue_depth):
+        """Parse `spec`; the subscription, `queue_depth` deep, starts once the type is known."""
         self.spec = spec
+        self.queue_depth = queue_depth
         self.source, self.destination, self.type_name = parse_relay(spec)
         self.source_node = source_node
         self.destination_node = destination_node
@@ -160,7 +165,8 @@ class Relay:
                                                     reliability=ReliabilityPolicy.RELIABLE))
         self.source_node.create_subscription(
             msg_class, self.source, self._on_message,
-            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
+            QoSProfile(depth=self.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT),
+            raw=True)
 
     def _on_message(self, data):
         now = time.monotonic()
@@ -229,7 +235,8 @@ class LinkEmulatorNode(Node):
         self.lines = {d: DelayLine(models[d], seed=None if seed is None else seed + i)
                       for i, d in enumerate(DIRECTIONS)}
         try:
-            self.relays = {d: [Relay(spec, *ends[d], self.lines[d], self.releaser)
+            self.relays = {d: [Relay(spec, *ends[d], self.lines[d], self.releaser,
+                                     config['queue_depth'])
                                for spec in specs[d]] for d in DIRECTIONS}
         except ValueError as error:
             raise ParameterError(str(error)) from None

@@ -165,7 +165,9 @@ def two_domains(install_prefix):
 
 
 def test_node_delays_each_direction_by_at_least_its_delay_and_drops_nothing(two_domains):
-    emulator, master, slave = two_domains([('to_slave.delay', 0.05), ('to_master.delay', 0.02)])
+    # A queue that holds what a loaded machine's stalls leave waiting: every message counts.
+    emulator, master, slave = two_domains([('to_slave.delay', 0.05), ('to_master.delay', 0.02),
+                                           ('queue_depth', 100)])
     poses = Stream(master, slave, PoseStamped, 'pose')
     wrenches = Stream(slave, master, WrenchStamped, 'wrench')
     for stream in (poses, wrenches):
@@ -206,6 +208,22 @@ def test_node_loses_the_set_fraction_and_keeps_order_under_jitter(two_domains):
     received, relayed, dropped = counts(output, 'to_slave')
     assert 0.1 < dropped / received < 0.3
     assert len(poses.arrivals.records) < relayed <= received - dropped
+
+
+def test_a_stalled_emulator_loses_what_its_queue_cannot_hold_instead_of_delaying_it(
+        two_domains):
+    emulator, master, slave = two_domains([])
+    poses = Stream(master, slave, PoseStamped, 'pose')
+    poses.warm_up()
+    # The emulator stopped for 0.6 s while 300 poses are sent: it can take at most a queue's
+    # worth of them afterwards (one 100 deep relayed 99 of them, each up to 0.6 s late).
+    emulator.process.send_signal(signal.SIGSTOP)
+    try:
+        poses.burst(300, period=0.002)
+    finally:
+        emulator.process.send_signal(signal.SIGCONT)
+    poses.finish()
+    assert 0 < len(poses.arrivals.records) <= PARAMETERS['queue_depth'].default
 
 
 # -- the README ----------------------------------------------------------------------------
