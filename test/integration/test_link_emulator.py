@@ -216,14 +216,16 @@ def test_a_stalled_emulator_loses_what_its_queue_cannot_hold_instead_of_delaying
     poses = Stream(master, slave, PoseStamped, 'pose')
     poses.warm_up()
     # The emulator stopped for 0.6 s while 300 poses are sent: it can take at most a queue's
-    # worth of them afterwards (one 100 deep relayed 99 of them, each up to 0.6 s late).
+    # worth of them afterwards (one 100 deep relayed 99 of them, each up to 0.6 s late). How
+    # many of the newest the transport keeps for it meanwhile is DDS's affair: 9 or 10 alone,
+    # none in one fresh-clone run beside a busy loop per core.
     emulator.process.send_signal(signal.SIGSTOP)
     try:
         poses.burst(300, period=0.002)
     finally:
         emulator.process.send_signal(signal.SIGCONT)
     poses.finish()
-    assert 0 < len(poses.arrivals.records) <= PARAMETERS['queue_depth'].default
+    assert len(poses.arrivals.records) <= PARAMETERS['queue_depth'].default
 
 
 # -- the README ----------------------------------------------------------------------------
