@@ -2,6 +2,7 @@
 # Licensed under the Apache License, Version 2.0
 """The link emulator: its relay specs, the installed node between two domains, its docs."""
 import collections
+import contextlib
 import re
 import shlex
 import signal
@@ -14,10 +15,12 @@ from harness import dds_shm, REPO
 from harness.driver import (
     ClientNode, DriverProcess, executable as executable_path, installed_env, next_domain_id,
     wait_for)
-from kraft_master_driver.nodes.link_emulator import PARAMETERS, parse_relay
+from kraft_master_driver.nodes.link_emulator import LinkEmulatorNode, PARAMETERS, parse_relay
 import numpy as np
 import pytest
 import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 
@@ -72,14 +75,13 @@ class Side(ClientNode):
 class Arrivals:
     """Records (header stamp, receipt time) in seconds of one subscription, from the ROS clock."""
 
-    def __init__(self, side, msg_type, topic):
-        """Subscribe to `topic` on `side`."""
-        self.clock = side.node.get_clock()
+    def __init__(self, node, msg_type, topic):
+        """Subscribe to `topic` on `node`."""
+        self.clock = node.get_clock()
         self.records = []
         self.markers = collections.Counter()
-        side.node.create_subscription(msg_type, topic, self._on_message,
-                                      QoSProfile(depth=100,
-                                                 reliability=ReliabilityPolicy.BEST_EFFORT))
+        node.create_subscription(msg_type, topic, self._on_message,
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT))
 
     def _on_message(self, msg):
         if msg.header.frame_id in (WARM_UP, END):
@@ -105,7 +107,7 @@ class Stream:
         self.msg_type = msg_type
         self.publisher = source.node.create_publisher(
             msg_type, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        self.arrivals = Arrivals(destination, msg_type, topic)
+        self.arrivals = Arrivals(destination.node, msg_type, topic)
 
     def publish(self, frame_id=''):
         """Publish one message stamped now."""
@@ -210,22 +212,91 @@ def test_node_loses_the_set_fraction_and_keeps_order_under_jitter(two_domains):
     assert len(poses.arrivals.records) < relayed <= received - dropped
 
 
-def test_a_stalled_emulator_loses_what_its_queue_cannot_hold_instead_of_delaying_it(
-        two_domains):
-    emulator, master, slave = two_domains([])
-    poses = Stream(master, slave, PoseStamped, 'pose')
-    poses.warm_up()
-    # The emulator stopped for 0.6 s while 300 poses are sent: it can take at most a queue's
-    # worth of them afterwards (one 100 deep relayed 99 of them, each up to 0.6 s late). How
-    # many of the newest the transport keeps for it meanwhile is DDS's affair: 9 or 10 alone,
-    # none in one fresh-clone run beside a busy loop per core.
-    emulator.process.send_signal(signal.SIGSTOP)
+class EmulatorInProcess:
+    """
+    The emulator node in the test's process, its master side spun by a thread of the test.
+
+    While `busy()` holds, that thread takes nothing, as a busy executor would; DDS goes on
+    receiving meanwhile. `watcher`, a node of the same context spun by a thread of its own, shares
+    the emulator's DDS participant, so each message reaches both through one receive thread, in
+    order.
+    """
+
+    def __init__(self, master_domain, slave_domain, topics):
+        """Start the emulator between two domains, relaying `topics` to the slave."""
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=master_domain)
+        self.node = LinkEmulatorNode(context=self.context, parameter_overrides=[
+            Parameter('slave_domain_id', value=slave_domain),
+            Parameter('to_slave.topics', value=topics)])
+        self.watcher = rclpy.create_node('link_test_watcher', context=self.context)
+        self.executors = [SingleThreadedExecutor(context=self.context) for _ in range(2)]
+        self._stopping = threading.Event()
+        self._free = threading.Event()
+        self._free.set()
+        self._spinning = threading.Lock()
+        self.threads = []
+        for node, executor, target in zip((self.node, self.watcher), self.executors,
+                                          (self._spin_emulator, self._spin_watcher)):
+            executor.add_node(node)
+            self.threads.append(threading.Thread(target=target, args=(executor,), daemon=True))
+            self.threads[-1].start()
+
+    def _spin_emulator(self, executor):
+        while not self._stopping.is_set():
+            self._free.wait()
+            with self._spinning:
+                executor.spin_once(timeout_sec=0.01)
+
+    def _spin_watcher(self, executor):
+        while not self._stopping.is_set():
+            executor.spin_once(timeout_sec=0.01)
+
+    @contextlib.contextmanager
+    def busy(self):
+        """Keep the emulator's master side from taking anything until the block ends."""
+        self._free.clear()
+        with self._spinning:
+            yield
+        self._free.set()
+
+    def close(self):
+        """Stop spinning, then destroy the nodes and leave the domain."""
+        self._stopping.set()
+        self._free.set()
+        for thread in self.threads:
+            thread.join(timeout=5.0)
+        self.node.destroy_node()
+        for executor in self.executors:
+            executor.shutdown()
+        self.watcher.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def test_a_busy_emulator_loses_what_its_queue_cannot_hold_instead_of_delaying_it():
+    master_domain, slave_domain = next_domain_id(), next_domain_id()
+    emulator = EmulatorInProcess(master_domain, slave_domain,
+                                 ['pose:pose:geometry_msgs/msg/PoseStamped'])
+    master, slave = Side(master_domain), Side(slave_domain)
     try:
-        poses.burst(300, period=0.002)
+        poses = Stream(master, slave, PoseStamped, 'pose')
+        poses.warm_up()
+        seen = Arrivals(emulator.watcher, PoseStamped, 'pose')
+        # Busy for 0.6 s while 300 poses come. Once the watcher has an end marker sent after
+        # them, the emulator's queue has had every one of them: what it then relays of them is
+        # what its queue kept, less the end markers in it (7 with 10; 97 with 100). Stopped
+        # whole by SIGSTOP instead, the emulator relayed 12 and 19 with 10: DDS's transport held
+        # the poses and fed them to the queue while the executor took from it again.
+        with emulator.busy():
+            poses.burst(300, period=0.002)
+            wait_for(lambda: poses.publish(END) or seen.markers[END], interval=0.02)
+        poses.finish()
+        assert len(seen.records) > PARAMETERS['queue_depth'].default
+        assert len(poses.arrivals.records) <= PARAMETERS['queue_depth'].default
     finally:
-        emulator.process.send_signal(signal.SIGCONT)
-    poses.finish()
-    assert len(poses.arrivals.records) <= PARAMETERS['queue_depth'].default
+        master.close()
+        slave.close()
+        emulator.close()
 
 
 # -- the README ----------------------------------------------------------------------------
@@ -279,8 +350,8 @@ def test_the_readme_example_relays_pose_to_the_bridge_and_its_wrench_back(instal
                 stderr=subprocess.STDOUT, text=True))
         master, slave = (Side(domains[d]) for d in sorted(domains))
         sides = {'master': master, 'slave': slave}
-        wrenches = Arrivals(master, WrenchStamped, 'wrench')
-        commands = Arrivals(slave, PoseStamped, 'servo_cp')
+        wrenches = Arrivals(master.node, WrenchStamped, 'wrench')
+        commands = Arrivals(slave.node, PoseStamped, 'servo_cp')
         # The bridge enables itself and commands the arm once the driver's pose reached it;
         # its wrench comes back delayed.
         wait_for(lambda: len(commands.records) > 10 and len(wrenches.records) > 10,
