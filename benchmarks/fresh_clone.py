@@ -9,7 +9,8 @@ only, as CI sees them) and runs `.ci/run` there: a new venv, the pinned install,
 suite. With --test, one clone and its venv (`make venv`) serve every run, and each run is one
 pytest process of that test alone. --busy-loops K starts K `while True: pass` processes for
 the length of each run. Figures, no asserts: a line per run, the count and the durations, and
-JSON (--json). Every run's output is kept in --logs.
+JSON (--json). Every run's output is kept in --logs. Ctrl-C or SIGTERM stops the run in
+progress whole: its processes, its busy loops and its clone.
 """
 import argparse
 import json
@@ -75,8 +76,14 @@ def positive(text):
     return int(text)
 
 
+def stop(signum, frame):
+    """On SIGTERM, leave as on Ctrl-C: the run's process group and busy loops go too."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv=None):
     """Run the runs, print a line for each and the count, write JSON if asked."""
+    signal.signal(signal.SIGTERM, stop)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('--runs', type=positive, default=10)
     parser.add_argument('--busy-loops', type=int, default=0, metavar='K',
