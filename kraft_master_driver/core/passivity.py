@@ -237,7 +237,9 @@ class LinkMonitor:
     One-way delay and loss of a stream of stamped messages, per window.
 
     Both ends must share a clock (one machine, or hosts synchronised by NTP/PTP). Loss is
-    counted from the gaps between stamps against the stream's median interval.
+    counted from the gaps between stamps against the stream's median interval, so it is the
+    share of the stream's ticks that never arrived: lost on the way, or never sent because the
+    sender fell behind and skipped them. Without sequence numbers the two look alike.
     """
 
     def __init__(self):
