@@ -37,6 +37,12 @@ def milliseconds(name, median_p99_max):
             for label, seconds in zip(('median', 'p99', 'max'), median_p99_max)}
 
 
+def link_values(direction, link):
+    """Return the keys and texts of a LinkMonitor.summary(): delay (ms) and loss (%)."""
+    return {**milliseconds(f'{direction} delay', link[:3]),
+            f'{direction} loss (%)': f'{100.0 * link[3]:.1f}'}
+
+
 def driver_diagnostics(readings):
     """Return (level, message, values): OK, WARN or ERROR, one line, {key: text}."""
     statistics = readings.statistics
@@ -85,6 +91,5 @@ def _passivity_values(readings):
                        f'{side} energy dissipated (J)': f'{dissipated:.4f}'})
     values['master energy observed (J)'] = f'{port.observed:.4f}'
     if readings.slave_link is not None:
-        values.update(milliseconds('slave to master delay', readings.slave_link[:3]))
-        values['slave to master loss (%)'] = f'{100.0 * readings.slave_link[3]:.1f}'
+        values.update(link_values('slave to master', readings.slave_link))
     return values

@@ -27,6 +27,7 @@ from kraft_master_driver.core import realtime
 from kraft_master_driver.core.passivity import LinkMonitor
 from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
 from kraft_master_driver.link import cdr
+from kraft_master_driver.nodes.driver_diagnostics import link_values
 from kraft_master_driver.nodes.lifecycle import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
 from kraft_master_driver.nodes.ros_helpers import (
@@ -435,9 +436,7 @@ class TeleopNode(Node):
                   'memory lock': self.scheduling.memory_lock}
         link = self.pose_link.summary()
         if link is not None:
-            values.update({f'master to slave delay {label} (ms)': f'{1e3 * seconds:.3f}'
-                           for label, seconds in zip(('median', 'p99', 'max'), link[:3])})
-            values['master to slave loss (%)'] = f'{100.0 * link[3]:.1f}'
+            values.update(link_values('master to slave', link))
         array = DiagnosticArray(status=[DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
             message=bridge.describe(),
