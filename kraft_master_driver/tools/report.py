@@ -253,7 +253,7 @@ def quaternions(rotations):
     r = rotations
     r00, r11, r22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
     trace = r00 + r11 + r22
-    # The same four cases as kinematics.rotation_to_quaternion, ties broken alike, per row.
+    # The same four cases as core.rotations.rotation_to_quaternion, ties broken alike, per row.
     case = np.where(trace > 0.0, 3, np.where((r00 > r11) & (r00 > r22), 0,
                                              np.where(r11 > r22, 1, 2)))
     q = np.empty((len(r), 4))

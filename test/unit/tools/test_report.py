@@ -13,6 +13,7 @@ from kraft_master_driver.bag.recorder import BagRecorder, qos_profile
 from kraft_master_driver.bag.samples import simulate_samples, write_samples
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.rotations import rotation_to_quaternion
 from kraft_master_driver.tools import report
 from matplotlib.image import imread
 import numpy as np
@@ -268,7 +269,7 @@ def test_recalibration_from_the_recorded_pots(tmp_path, capsys):
     poses = kinematics.forward(position, 'right')
     recal = [names.index(n) for n in ('recal_x', 'recal_y', 'recal_z')]
     np.testing.assert_allclose(rows[:, recal], poses[:, :3, 3], atol=1e-9)
-    quaternions = np.array([kinematics.rotation_to_quaternion(p) for p in poses])
+    quaternions = np.array([rotation_to_quaternion(p) for p in poses])
     np.testing.assert_allclose(rows[:, -4:], quaternions, atol=1e-9)
 
 
@@ -318,7 +319,7 @@ def test_batch_quaternions_equal_the_scalar_ones():
     flips = np.array([np.diag(d) for d in ((1, -1, -1), (-1, 1, -1), (-1, -1, 1))] +
                      [[[0, 1, 0], [1, 0, 0], [0, 0, -1]]])  # half a turn about x = y: a tie
     rotations = np.concatenate([rotations, flips])
-    expected = np.array([kinematics.rotation_to_quaternion(r) for r in rotations])
+    expected = np.array([rotation_to_quaternion(r) for r in rotations])
     np.testing.assert_allclose(report.quaternions(rotations), expected, atol=1e-12)
 
 
