@@ -112,6 +112,33 @@ def rotation_to_quaternion(rotation):
     return x / length, y / length, z / length, w / length
 
 
+def rotations_to_quaternions(rotations):
+    """Return one unit quaternion row (x, y, z, w; w >= 0) per rotation matrix of (N, 3, 3)."""
+    r = rotations
+    r00, r11, r22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
+    trace = r00 + r11 + r22
+    # The same four cases as rotation_to_quaternion, ties broken alike, per row.
+    case = np.where(trace > 0.0, 3, np.where((r00 > r11) & (r00 > r22), 0,
+                                             np.where(r11 > r22, 1, 2)))
+    q = np.empty((len(r), 4))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        for index, rows in enumerate(case == k for k in range(4)):
+            m = r[rows]
+            if index == 3:
+                s = 2.0 * np.sqrt(trace[rows] + 1.0)
+                q[rows] = np.stack([(m[:, 2, 1] - m[:, 1, 2]) / s, (m[:, 0, 2] - m[:, 2, 0]) / s,
+                                    (m[:, 1, 0] - m[:, 0, 1]) / s, 0.25 * s], axis=1)
+                continue
+            i, j, k = index, (index + 1) % 3, (index + 2) % 3
+            s = 2.0 * np.sqrt(1.0 + m[:, i, i] - m[:, j, j] - m[:, k, k])
+            q[rows, i] = 0.25 * s
+            q[rows, j] = (m[:, i, j] + m[:, j, i]) / s
+            q[rows, k] = (m[:, i, k] + m[:, k, i]) / s
+            q[rows, 3] = (m[:, k, j] - m[:, j, k]) / s
+    q[q[:, 3] < 0.0] *= -1.0
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
 def integrate_quaternion(quaternion, angular_velocity, dt):
     """Turn a unit quaternion (x, y, z, w) by angular_velocity (rad/s, base frame) for dt s."""
     rotation = np.asarray(angular_velocity, dtype=float) * dt

@@ -1,12 +1,13 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""Rotations: roll, pitch, yaw and quaternions, rotation vectors, quaternion integration."""
+"""Rotations: roll, pitch, yaw and quaternions, rotation vectors, integration, batches."""
 import math
 
 from hypothesis import given, settings as hypothesis_settings, strategies as st
+from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.rotations import (
     integrate_quaternion, quaternion_to_rotation, rotation_from_vector, rotation_parameter,
-    rotation_vector, rpy_to_rotation)
+    rotation_to_quaternion, rotation_vector, rotations_to_quaternions, rpy_to_rotation)
 import numpy as np
 import pytest
 
@@ -66,3 +67,15 @@ def test_quaternion_integration_composes_in_the_base_frame():
     then_about_x = integrate_quaternion(about_z, (math.pi / 2, 0.0, 0.0), 1.0)
     # Rx(90) Rz(90) as (x, y, z, w).
     np.testing.assert_allclose(then_about_x, [0.5, -0.5, 0.5, 0.5], atol=1e-12)
+
+
+def test_batch_quaternions_equal_the_scalar_ones():
+    rng = np.random.default_rng(10)
+    theta = rng.uniform(-math.pi, math.pi, (4000, 6))
+    rotations = kinematics.forward(theta)[:, :3, :3]
+    # Rotations of half a turn reach every branch of the conversion.
+    flips = np.array([np.diag(d) for d in ((1, -1, -1), (-1, 1, -1), (-1, -1, 1))] +
+                     [[[0, 1, 0], [1, 0, 0], [0, 0, -1]]])  # half a turn about x = y: a tie
+    rotations = np.concatenate([rotations, flips])
+    expected = np.array([rotation_to_quaternion(r) for r in rotations])
+    np.testing.assert_allclose(rotations_to_quaternions(rotations), expected, atol=1e-12)
