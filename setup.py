@@ -33,7 +33,7 @@ setup(
     entry_points={
         'console_scripts': [
             'kraft_master_node = kraft_master_driver.nodes.commands:driver',
-            'kraft_master_sim = kraft_master_driver.simulation.simulator:main',
+            'kraft_master_sim = kraft_master_driver.simulation.master.simulator:main',
             'kraft_master_slave_sim = kraft_master_driver.nodes.commands:slave_sim',
             'kraft_master_urdf = kraft_master_driver.tools.urdf_model:main',
             'kraft_master_report = kraft_master_driver.tools.report:main',

@@ -46,7 +46,7 @@ sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
 from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
-from kraft_master_driver.simulation.arm_physics import Gains, HOME, PandaArm, Table  # noqa: E402
+from kraft_master_driver.simulation.arms.panda import Gains, HOME, PandaArm, Table  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402

@@ -42,10 +42,10 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from kraft_master_driver.core import kinematics  # noqa: E402, I100
+from kraft_master_driver.core import kinematics, rotations  # noqa: E402, I100
 from kraft_master_driver.core.calibration import ArmCalibration  # noqa: E402
-from kraft_master_driver.link import cdr  # noqa: E402
-from kraft_master_driver.simulation.model import Workspace  # noqa: E402
+from kraft_master_driver.nodes import cdr  # noqa: E402
+from kraft_master_driver.simulation.master.model import Workspace  # noqa: E402
 from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
 STEP_M = 1e-6  # the master's travel per pose while moving: 1 mm/s at 1 kHz
@@ -69,7 +69,7 @@ def ros_env(domain_id):
 def master_home():
     """Return the master's wrist pose (x, y, z, qx, qy, qz, qw) at the simulator's home."""
     pose = kinematics.forward(Workspace().home())
-    return (*pose[:3, 3], *kinematics.rotation_to_quaternion(pose[:3, :3]))
+    return (*pose[:3, 3], *rotations.rotation_to_quaternion(pose[:3, :3]))
 
 
 def count_resolution(arm='right'):

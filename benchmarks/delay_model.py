@@ -27,10 +27,11 @@ sys.path[:0] = [str(REPO)]
 
 from kraft_master_driver.core import kinematics  # noqa: E402, I100
 from kraft_master_driver.core.force_reflection import ForceReflection  # noqa: E402
-from kraft_master_driver.core.loop_statistics import VelocityFilter  # noqa: E402
 from kraft_master_driver.core.passivity import MasterPort, SlavePort  # noqa: E402
-from kraft_master_driver.nodes.slave_sim import SlaveArm, SlaveLimits, Wall  # noqa: E402
-from kraft_master_driver.simulation.model import (  # noqa: E402
+from kraft_master_driver.core.velocity_filter import VelocityFilter  # noqa: E402
+from kraft_master_driver.simulation.arms.point_mass import (  # noqa: E402
+    SlaveArm, SlaveLimits, Wall)
+from kraft_master_driver.simulation.master.model import (  # noqa: E402
     DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
 
 ARM = 'right'

@@ -3,7 +3,8 @@
 """
 Time KmcDevice cycles against the simulated hand controller in another process, over a pty.
 
-Two runs, the simulator started each time as `python -m kraft_master_driver.simulation.simulator`:
+Two runs, the simulator started each time as
+`python -m kraft_master_driver.simulation.master.simulator`:
 - flat out, no wire timing (the software floor of pyserial over a pseudo-terminal): cycles/s
   and the round-trip time distribution (median, p99, max);
 - with the simulator delaying each reply by its wire time at 115200 baud: the achieved rate as
@@ -58,7 +59,8 @@ class SimulatorProcess:
             self._arguments = [sys.executable, __file__, '--bare-far-end', '--baud',
                                str(baud or 0), '--sim-priority', str(priority)]
         else:
-            self._arguments = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+            self._arguments = [sys.executable, '-m',
+                               'kraft_master_driver.simulation.master.simulator',
                                '--priority', str(priority)]
             if baud is not None:
                 self._arguments += ['--baud', str(baud)]

@@ -200,7 +200,7 @@ def set_unbound_workers(priority):
 
 
 def start_simulator(env, record, baud, priority):
-    command = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+    command = [sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
                '--record', record, '--priority', str(priority)]
     if baud:
         command += ['--baud', str(baud)]

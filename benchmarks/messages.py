@@ -24,7 +24,7 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from kraft_master_driver.link import cdr  # noqa: E402, I100
+from kraft_master_driver.nodes import cdr  # noqa: E402, I100
 # Loaded for the garbage collection figure.
 import kraft_master_driver.nodes.driver  # noqa: E402, F401
 from machine import cpu_times, steal_fraction  # noqa: E402, I100

@@ -27,7 +27,8 @@ from kraft_master_driver.bag.common import typestore  # noqa: E402
 from kraft_master_driver.bag.recorder import BagRecorder, STORAGES  # noqa: E402
 from kraft_master_driver.bag.samples import simulate_samples, write_samples  # noqa: E402
 from kraft_master_driver.core.calibration import ArmCalibration  # noqa: E402
-from kraft_master_driver.tools import report  # noqa: E402
+from kraft_master_driver.tools import (  # noqa: E402
+    report, report_data, report_plots, report_tables)
 from rosbags.rosbag2 import Reader  # noqa: E402
 
 TARGET_S = 30.0
@@ -106,14 +107,14 @@ def phases(bag, out, calibration_path):
     """Run the report's phases one by one; print each one's time; return the read time."""
     calibration = ArmCalibration.from_yaml(calibration_path)
     with Stopwatch() as read:
-        (arm_data,) = report.read_arms(bag)
+        (arm_data,) = report_data.read_arms(bag)
     with Stopwatch() as recalibrating:
-        recalibration = report.recalibrate(arm_data, calibration)
+        recalibration = report_data.recalibrate(arm_data, calibration)
     with Stopwatch() as csv:
-        report.write_csv(Path(out) / 'phase_samples.csv', arm_data, recalibration)
+        report_tables.write_csv(Path(out) / 'phase_samples.csv', arm_data, recalibration)
     with Stopwatch() as figure:
         figure_path = Path(out) / 'phase.png'
-        report.draw(arm_data, recalibration, 'benchmark').savefig(figure_path, dpi=80)
+        report_plots.draw(arm_data, recalibration, 'benchmark').savefig(figure_path, dpi=80)
     print(f'    read + decode  {read}  ({len(arm_data.stamp)} samples)')
     print(f'    recalibration  {recalibrating}')
     print(f'    CSV            {csv}')

@@ -26,7 +26,7 @@ import signal
 import subprocess
 
 from kraft_master_driver.core.control_loop import LOOP_THREAD
-from kraft_master_driver.simulation.serving import SERVING_THREAD
+from kraft_master_driver.simulation.master.serving import SERVING_THREAD
 import numpy as np
 
 SLOW_GAP_MS = 1.25

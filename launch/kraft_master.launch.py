@@ -20,7 +20,7 @@ import os
 from ament_index_python.packages import (
     get_package_prefix, get_package_share_directory, PackageNotFoundError)
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
-from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names, package_file_name
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction

@@ -16,7 +16,7 @@ arm's pose and force reading are fresh (the arm is simulated: nothing real moves
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction

@@ -17,7 +17,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from kraft_master_driver.core.kinematics import ARMS
-from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.simulation.master.operators import OPERATORS
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
 from launch.launch_description_sources import PythonLaunchDescriptionSource

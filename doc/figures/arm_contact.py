@@ -4,7 +4,7 @@
 """
 Render the simulated Panda pressing on its table, offscreen with MuJoCo's renderer (doc/figures/).
 
-Runs simulation.arm_physics.PandaArm alone (no ROS): from the ready pose its target goes down
+Runs simulation.arms.panda.PandaArm alone (no ROS): from the ready pose its target goes down
 at 0.1 m/s to 2 cm below the table top, and the arm is held there for 2 s; then one frame is
 rendered, with the contact force drawn as an arrow, and the figures of that moment printed:
 where the fingertips are, the table's force on them, and the sensor's reading less the tool's
@@ -17,7 +17,7 @@ import pathlib
 import sys
 
 os.environ.setdefault('MUJOCO_GL', 'egl')
-from kraft_master_driver.simulation.arm_physics import PandaArm, Table  # noqa: E402
+from kraft_master_driver.simulation.arms.panda import PandaArm, Table  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 from PIL import Image  # noqa: E402

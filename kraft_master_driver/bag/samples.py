@@ -6,10 +6,10 @@ from typing import NamedTuple
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, DRIVER_TOPICS, JOINT_STATE, POSE_STAMPED, typestore, WRENCH_STAMPED)
 from kraft_master_driver.bag.recorder import qos_profile
-from kraft_master_driver.core import kinematics
+from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
-from kraft_master_driver.simulation.model import actuators_to_joints, Workspace
-from kraft_master_driver.simulation.operators import RandomWalkOperator
+from kraft_master_driver.simulation.master.model import actuators_to_joints, Workspace
+from kraft_master_driver.simulation.master.operators import RandomWalkOperator
 import numpy as np
 
 
@@ -52,7 +52,7 @@ def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise
     position = calibration.pots_to_joints(pots)
     velocity = np.gradient(position, t, axis=0) if count > 1 else np.zeros_like(position)
     poses = kinematics.forward(position, arm)
-    orientation = np.array([kinematics.rotation_to_quaternion(p) for p in poses]).reshape(-1, 4)
+    orientation = np.array([rotations.rotation_to_quaternion(p) for p in poses]).reshape(-1, 4)
     phases = rng.uniform(0.0, 2.0 * np.pi, 6)
     wrench = np.array([5.0, 5.0, 5.0, 0.2, 0.2, 0.2]) * np.sin(
         2.0 * np.pi * 0.5 * t[:, None] + phases)

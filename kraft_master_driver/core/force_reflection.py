@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-Force reflection and rate commands: from a task wrench to the five torques sent to the device.
+Force reflection: from a task wrench to the five torques sent to the device.
 
 Pure logic, no ROS. The node's loop thread calls ForceReflection.compute() once per cycle; the
 ROS executor thread calls submit() for each wrench and configure() for parameter changes. Each
@@ -18,6 +18,8 @@ import threading
 from typing import NamedTuple
 
 from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.validation import (
+    choice, finite_real, finite_reals, flag)
 import numpy as np
 
 WRIST_FRAME, BASE_FRAME = 'wrist', 'base'
@@ -107,60 +109,19 @@ _ZERO_OUTPUTS = {
     for state in STATES if state != ACTIVE}
 
 
-def _interval(lower, upper, lower_open):
-    return f'{"(" if lower_open else "["}{lower:g}, {upper:g}{")" if upper == math.inf else "]"}'
-
-
-def _real(name, value, lower=0.0, upper=math.inf, lower_open=False):
-    """Return value as a float if it is a finite real number in range, else raise ValueError."""
-    if type(value) is not float:
-        if isinstance(value, bool) or not isinstance(value, numbers.Real):
-            raise ValueError(f'{name} must be a number, got {value!r}')
-        value = float(value)
-    if not (math.isfinite(value) and lower <= value <= upper
-            and not (lower_open and value == lower)):
-        raise ValueError(
-            f'{name} must be finite and in {_interval(lower, upper, lower_open)}, got {value}')
-    return value
-
-
-def _reals(name, values, length, lower_open=False):
-    """Return a tuple of `length` finite non-negative floats (positive if lower_open)."""
-    if isinstance(values, (str, bytes)):
-        raise ValueError(f'{name} must be {length} numbers, got {values!r}')
-    try:
-        values = list(values)
-    except TypeError:
-        raise ValueError(f'{name} must be {length} numbers, got {values!r}') from None
-    if len(values) != length:
-        raise ValueError(f'{name} must be {length} numbers, got {len(values)}')
-    return tuple(_real(f'{name}[{i}]', v, lower_open=lower_open) for i, v in enumerate(values))
-
-
-def _flag(name, value):
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f'{name} must be True or False, got {value!r}')
-    return bool(value)
-
-
-def _choice(name, choices, value):
-    if value not in choices:
-        raise ValueError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
-    return value
-
-
 _VALIDATORS = {
-    'enabled': partial(_flag, 'enabled'),
-    'force_scale': partial(_real, 'force_scale'),
-    'torque_limits': partial(_reals, 'torque_limits', length=DRIVEN_AXES, lower_open=True),
-    'coupling': partial(_choice, 'coupling', COUPLINGS),
-    'wrench_timeout': partial(_real, 'wrench_timeout', upper=MAX_WRENCH_TIMEOUT,
+    'enabled': partial(flag, 'enabled'),
+    'force_scale': partial(finite_real, 'force_scale'),
+    'torque_limits': partial(finite_reals, 'torque_limits', length=DRIVEN_AXES, lower_open=True),
+    'coupling': partial(choice, 'coupling', COUPLINGS),
+    'wrench_timeout': partial(finite_real, 'wrench_timeout', upper=MAX_WRENCH_TIMEOUT,
                               lower_open=True),
-    'max_wrench_age': partial(_real, 'max_wrench_age', upper=MAX_WRENCH_AGE, lower_open=True),
-    'max_force': partial(_real, 'max_force'),
-    'max_moment': partial(_real, 'max_moment'),
-    'centre_stiffness': partial(_reals, 'centre_stiffness', length=2),
-    'centre_damping': partial(_reals, 'centre_damping', length=2),
+    'max_wrench_age': partial(finite_real, 'max_wrench_age', upper=MAX_WRENCH_AGE,
+                              lower_open=True),
+    'max_force': partial(finite_real, 'max_force'),
+    'max_moment': partial(finite_real, 'max_moment'),
+    'centre_stiffness': partial(finite_reals, 'centre_stiffness', length=2),
+    'centre_damping': partial(finite_reals, 'centre_damping', length=2),
 }
 
 
@@ -429,34 +390,3 @@ def _rotate(rows, x, y, z):
 def _minus_product(wrench, gains, values):
     """Return wrench - gains * values, elementwise over six floats."""
     return [w - k * v for w, k, v in zip(wrench, gains, values)]
-
-
-def _outside_dead_band(vector, gain, dead_band):
-    """Return gain * vector with its length shrunk by dead_band (zero inside the band)."""
-    length = math.hypot(*vector)
-    if length <= dead_band:
-        return [0.0, 0.0, 0.0]
-    factor = gain * (1.0 - dead_band / length)
-    return [factor * x for x in vector]
-
-
-def rate_command(pose, centre, linear_gain, angular_gain, linear_dead_band=0.0,
-                 angular_dead_band=0.0):
-    """
-    Return (v, w), each (3,) in {0}: a rate-mode velocity command from the wrist's offset.
-
-    The Section 4 pose difference (kinematics.pose_difference(pose, centre)) times the gains
-    (1/s). The dead bands (m, rad) are subtracted from the lengths of dp and of the rotation
-    vector, so small offsets command nothing and the command stays continuous. A non-finite
-    result gives zero velocities.
-    """
-    linear_gain = _real('linear_gain', linear_gain, lower=-math.inf)
-    angular_gain = _real('angular_gain', angular_gain, lower=-math.inf)
-    linear_dead_band = _real('linear_dead_band', linear_dead_band)
-    angular_dead_band = _real('angular_dead_band', angular_dead_band)
-    dp, dw = kinematics.pose_difference(pose, centre)
-    v = _outside_dead_band(dp.tolist(), linear_gain, linear_dead_band)
-    w = _outside_dead_band(dw.tolist(), angular_gain, angular_dead_band)
-    if not all(map(math.isfinite, v + w)):
-        return np.zeros(3), np.zeros(3)
-    return np.array(v), np.array(w)

@@ -291,28 +291,3 @@ def pose_difference(t_current, t_reference):
         rz * cy * cx - ry * sx,
     ])
     return dp, r_ref @ w_reference
-
-
-def rotation_to_quaternion(rotation):
-    """Return the unit quaternion (x, y, z, w) of a rotation matrix, with w >= 0."""
-    r = rotation
-    r00, r01, r02 = r[0][0], r[0][1], r[0][2]
-    r10, r11, r12 = r[1][0], r[1][1], r[1][2]
-    r20, r21, r22 = r[2][0], r[2][1], r[2][2]
-    trace = r00 + r11 + r22
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        x, y, z, w = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
-    elif r00 > r11 and r00 > r22:
-        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        x, y, z, w = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
-    elif r11 > r22:
-        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        x, y, z, w = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        x, y, z, w = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
-    if w < 0.0:
-        x, y, z, w = -x, -y, -z, -w
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    return x / norm, y / norm, z / norm, w / norm

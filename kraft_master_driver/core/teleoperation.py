@@ -21,92 +21,20 @@ from the arm's measured tool frame). Times are monotonic seconds given by the ca
 import math
 from typing import NamedTuple
 
-from kraft_master_driver.core.kinematics import rotation_to_quaternion
 from kraft_master_driver.core.passivity import SlavePort
+from kraft_master_driver.core.rotations import (
+    clamp_norm, cross, norm, quaternion_to_rotation, QUATERNION_TOLERANCE, rotation_from_vector,
+    rotation_parameter, rotation_to_quaternion, rotation_vector)
 import numpy as np
 
 STATES = ('DISABLED', 'ENABLED', 'CLUTCHED', 'FAULT')
 ORIENTATIONS = ('follow', 'fixed', 'ignore')
 MAX_STEP = 0.05  # s: a longer gap between two master poses is taken as this long
-QUATERNION_TOLERANCE = 0.01  # |q| may differ from 1 by this much; more is refused
-
-
-def quaternion_to_rotation(quaternion):
-    """Return the rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = quaternion
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def rpy_to_rotation(roll, pitch, yaw):
-    """Return Rz(yaw) Ry(pitch) Rx(roll), as ROS's roll, pitch, yaw (REP 103)."""
-    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch),
-                              math.sin(pitch), math.cos(yaw), math.sin(yaw))
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
-
-
-def _norm(vector):
-    """Return the length of a short vector: math.hypot, a few times faster than numpy's norm."""
-    return math.hypot(*vector)
-
-
-def _cross(a, b):
-    """Return the cross product of two 3-vectors (numpy's takes microseconds to set up)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]])
-
-
-def rotation_parameter(name, values):
-    """Return the rotation of 3 values (roll, pitch, yaw; rad) or 4 (a quaternion x, y, z, w)."""
-    values = [float(v) for v in values]
-    if not all(math.isfinite(v) for v in values) or len(values) not in (3, 4):
-        raise ValueError(f'{name} must be 3 finite values (roll, pitch, yaw in rad) or 4 (a '
-                         f'unit quaternion x, y, z, w), got {values}')
-    if len(values) == 3:
-        return rpy_to_rotation(*values)
-    if abs(math.sqrt(sum(v * v for v in values)) - 1.0) > QUATERNION_TOLERANCE:
-        raise ValueError(f'{name}: the quaternion {values} is not of unit length')
-    return quaternion_to_rotation(np.array(values) / np.linalg.norm(values))
-
-
-def rotation_vector(rotation):
-    """Return the axis times angle (rad, 3) of a rotation matrix, angle in [0, pi]."""
-    cosine = max(-1.0, min(1.0, (np.trace(rotation) - 1.0) / 2.0))
-    angle = math.acos(cosine)
-    if angle < 1e-9:
-        return np.zeros(3)
-    axis_sin = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0],
-                         rotation[1, 0] - rotation[0, 1]]) / 2.0
-    if angle < math.pi - 1e-6:
-        return axis_sin * (angle / math.sin(angle))
-    # Near a half turn the axis comes from the symmetric part.
-    column = int(np.argmax(np.diag(rotation)))
-    axis = (rotation[:, column] + np.eye(3)[:, column]) / 2.0
-    return angle * axis / np.linalg.norm(axis)
-
-
-def rotation_from_vector(vector):
-    """Return the rotation matrix of an axis times angle (rad, 3): Rodrigues' formula."""
-    angle = _norm(vector)
-    if angle < 1e-12:
-        return np.eye(3)
-    kx, ky, kz = np.asarray(vector) / angle
-    k = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
-    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
-
-
-def _clamp_norm(vector, limit):
-    length = _norm(vector)
-    return vector * (limit / length) if length > limit else vector
 
 
 def _dead_band(vector, band):
     """Shrink a vector's length by `band`, to zero below it: no step at its edge."""
-    length = _norm(vector)
+    length = norm(vector)
     return vector * (max(length - band, 0.0) / length) if length > 0.0 else vector
 
 
@@ -311,7 +239,7 @@ class Teleoperation:
         quaternion = np.array(quaternion, dtype=float)
         if not all(map(math.isfinite, (*position, *quaternion))):
             return None, self._fault(f'{what} refused: not finite', now)
-        distance, length = _norm(position), _norm(quaternion)
+        distance, length = norm(position), norm(quaternion)
         if distance > self.settings.max_input_position:
             return None, self._fault(
                 f'{what} refused: {distance:g} m from its base is beyond '
@@ -349,8 +277,8 @@ class Teleoperation:
         self.arm = (pose, now)
         reference = self.command if self.following else self.hold
         if self.state in ('ENABLED', 'CLUTCHED') and reference is not None:
-            error = _norm(pose.position - reference.position)
-            angle = _norm(rotation_vector(reference.rotation @ pose.rotation.T))
+            error = norm(pose.position - reference.position)
+            angle = norm(rotation_vector(reference.rotation @ pose.rotation.T))
             settings = self.settings
             if error > settings.max_tracking_error:
                 return self._fault(f'tracking error {error:.4f} m beyond max_tracking_error '
@@ -370,7 +298,7 @@ class Teleoperation:
         wrench = np.array(wrench, dtype=float)
         if not all(map(math.isfinite, wrench)):
             return self._fault('measured_cf refused: not finite', now)
-        force, moment = _norm(wrench[:3]), _norm(wrench[3:])
+        force, moment = norm(wrench[:3]), norm(wrench[3:])
         if force > settings.max_input_force or moment > settings.max_input_moment:
             return self._fault(
                 f'measured_cf refused: |f| {force:g} N, |m| {moment:g} N*m beyond '
@@ -412,9 +340,9 @@ class Teleoperation:
         """Move the target toward the mapped master pose within the speed limits."""
         wanted = self._mapped(pose)
         settings = self.settings
-        step = _clamp_norm(wanted.position - self._target.position, settings.max_linear_speed * dt)
-        turn = _clamp_norm(rotation_vector(wanted.rotation @ self._target.rotation.T),
-                           settings.max_angular_speed * dt)
+        step = clamp_norm(wanted.position - self._target.position, settings.max_linear_speed * dt)
+        turn = clamp_norm(rotation_vector(wanted.rotation @ self._target.rotation.T),
+                          settings.max_angular_speed * dt)
         self._target = Pose(self._target.position + step,
                             rotation_from_vector(turn) @ self._target.rotation)
         force = self._environment_force() if settings.force_feedback else np.zeros(3)
@@ -436,11 +364,11 @@ class Teleoperation:
             return np.zeros(6)
         settings = self.settings
         measured = self.arm[0]
-        linear = _clamp_norm(settings.twist_gain * (self.command.position - measured.position),
-                             settings.max_linear_speed)
+        linear = clamp_norm(settings.twist_gain * (self.command.position - measured.position),
+                            settings.max_linear_speed)
         angular = np.zeros(3)
         if settings.orientation != 'ignore':
-            angular = _clamp_norm(settings.twist_gain * rotation_vector(
+            angular = clamp_norm(settings.twist_gain * rotation_vector(
                 self.command.rotation @ measured.rotation.T), settings.max_angular_speed)
         return np.concatenate([linear, angular])
 
@@ -453,7 +381,7 @@ class Teleoperation:
         """Return the wrench (6, sensor frame) the tool's weight puts on the sensor."""
         settings = self.settings
         force = settings.tool_mass * (self._sensor_in_base().T @ np.array(settings.gravity))
-        return np.concatenate([force, _cross(settings.tool_com, force)])
+        return np.concatenate([force, cross(settings.tool_com, force)])
 
     def contact_wrench(self):
         """Return the environment's wrench on the tool (6, arm base frame), less bias and tool."""
@@ -483,5 +411,5 @@ class Teleoperation:
             alpha = 1.0 - math.exp(-2.0 * math.pi * settings.force_cutoff_hz * dt)
             wrench = self._filtered + alpha * (wrench - self._filtered)
         self._filtered, self._filtered_at = wrench, now
-        return np.concatenate([_clamp_norm(wrench[:3], settings.max_force),
-                               _clamp_norm(wrench[3:], settings.max_moment)])
+        return np.concatenate([clamp_norm(wrench[:3], settings.max_force),
+                               clamp_norm(wrench[3:], settings.max_moment)])

@@ -9,7 +9,7 @@ that moves the target) in `arm_frame`, and publishes `measured_cp` (the tool's p
 `ft_frame`: the wrench the tool applies to the sensor), as the arm side of kraft_master_teleop
 expects them. The physics steps 1 ms at a time, paced to the wall clock, and its real-time
 factor is in the diagnostics. A command older than command_timeout, or none, holds the arm
-still. The arm, its controller and its table are simulation.arm_physics.PandaArm (no ROS);
+still. The arm, its controller and its table are simulation.arms.panda.PandaArm (no ROS);
 this node only moves messages.
 """
 import math
@@ -19,12 +19,12 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
-from kraft_master_driver.link import cdr
-from kraft_master_driver.nodes.lifecycle import run_node
+from kraft_master_driver.nodes import cdr
+from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
 from kraft_master_driver.nodes.ros_helpers import (
     GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
-from kraft_master_driver.simulation.arm_physics import (
+from kraft_master_driver.simulation.arms.panda import (
     ArmModelMissing, Gains, JOINT_NAMES, PandaArm, SensorModel, Table)
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node

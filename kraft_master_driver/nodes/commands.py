@@ -5,7 +5,7 @@ The nodes' console scripts: a stop signal is a request to stop from their first 
 
 Each asks for its parent's death signal and remembers the stop signals before it imports its
 node (rclpy and numpy took 2 s on a loaded machine), then runs the node, which stops at once,
-with exit 0, if a stop signal came in the meantime (core.process, nodes.lifecycle). The
+with exit 0, if a stop signal came in the meantime (core.process, nodes.node_process). The
 parent-death signal comes first: a parent that dies in between is then not missed.
 """
 import importlib

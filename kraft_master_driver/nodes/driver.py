@@ -16,15 +16,15 @@ from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.core.control_loop import ControlLoop, LOOP_THREAD
 from kraft_master_driver.core.force_reflection import BASE_FRAME, ForceReflection, WRIST_FRAME
-from kraft_master_driver.core.loop_statistics import VelocityFilter
 from kraft_master_driver.core.passivity import MasterPort
+from kraft_master_driver.core.velocity_filter import VelocityFilter
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import ERROR_KINDS
 from kraft_master_driver.nodes import driver_diagnostics
 from kraft_master_driver.nodes.driver_diagnostics import DriverReadings
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS, SIM_PORT
 from kraft_master_driver.nodes.driver_topics import InputTopics, StateTopics
-from kraft_master_driver.nodes.lifecycle import run_node
+from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import check_value, declare_parameters, ParameterError
 from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
 from rcl_interfaces.msg import SetParametersResult
@@ -134,7 +134,7 @@ class KraftMasterNode(Node):
             raise ParameterError(str(error)) from None
 
     def _start_simulator(self):
-        from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+        from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
         self.simulator = SimulatedKraftMaster(
             arm=self.arm, calibration=self.calibration,
             torque_scale=tuple(self.config['torque_scale']),

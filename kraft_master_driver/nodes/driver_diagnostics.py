@@ -26,7 +26,7 @@ class DriverReadings(NamedTuple):
     port: str  # the device's port parameter
     master_port: object  # core.passivity.MasterPort: energies, observer, enabled
     slave_energy: tuple  # the slave's energy in, out, dissipated (J), as last received
-    slave_link: tuple  # passivity.LinkMonitor.summary() of slave_energy, or None
+    slave_link: tuple  # link_quality.LinkMonitor.summary() of slave_energy, or None
     memory_lock: str = 'not locked'  # whether the loop's memory lock was granted, and why not
     executor_scheduler: str = 'normal'  # the executor thread's scheduling, as the loop set it
 

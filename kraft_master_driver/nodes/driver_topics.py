@@ -3,7 +3,7 @@
 """
 The topics of kraft_master_node: the state it publishes and the inputs its loop takes.
 
-Both handle CDR bytes themselves (link/cdr.py): the loop thread packs and unpacks only values,
+Both handle CDR bytes themselves (nodes/cdr.py): the loop thread packs and unpacks only values,
 with the messages' layout worked out once. With crtk_names, the same state also goes out under
 CRTK's names (measured_js, measured_cp: the same bytes, published twice) and servo_cf is a
 second name of the wrench input; without it, no CRTK topic exists and the cycle does no more.
@@ -12,10 +12,10 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
-from kraft_master_driver.core import kinematics
-from kraft_master_driver.core.force_reflection import rate_command
-from kraft_master_driver.core.passivity import LinkMonitor
-from kraft_master_driver.link import cdr
+from kraft_master_driver.core import rotations
+from kraft_master_driver.core.link_quality import LinkMonitor
+from kraft_master_driver.core.rate_control import rate_command
+from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.ros_helpers import TakenByLoopThread
 import numpy as np
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
@@ -70,7 +70,7 @@ class StateTopics:
         pose = estimate.pose
         pose_stamped = self._pose_cdr.encode(
             sec, nanosec, (pose[3], pose[7], pose[11],
-                           *kinematics.rotation_to_quaternion(estimate.rotation)))
+                           *rotations.rotation_to_quaternion(estimate.rotation)))
         self.pose_pub.publish(pose_stamped)
         if self.crtk_pubs is not None:
             self.crtk_pubs[0].publish(joint_state)

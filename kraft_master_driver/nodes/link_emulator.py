@@ -28,7 +28,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core.delay_line import DelayLine, LinkModel
-from kraft_master_driver.nodes.lifecycle import run_node, try_shutdown
+from kraft_master_driver.nodes.node_process import run_node, try_shutdown
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
 from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer

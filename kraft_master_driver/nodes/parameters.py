@@ -8,7 +8,7 @@ given for the node that the table does not know (naming the nearest known one), 
 integer wherever a floating-point value is expected (at start-up and at run time: the parameter
 stays DOUBLE), and checks every value against its Spec. read_params_file() checks a params file
 as rcl would read it; usage() is a node's --help text. Every refusal is a ParameterError of one
-line; lifecycle.run_node() prints it and exits 1.
+line; node_process.run_node() prints it and exits 1.
 """
 import difflib
 import math

@@ -11,7 +11,7 @@ the F/T bias. The logic is core.teleoperation.Teleoperation; this node only move
 
 The four streaming inputs (pose, master_energy, measured_cp, measured_cf) are taken raw by a
 thread of their own that waits on them alone and handles each message as it comes, and
-servo_cp, servo_cv and wrench go out as CDR bytes (link/cdr.py): through rclpy's typed
+servo_cp, servo_cv and wrench go out as CDR bytes (nodes/cdr.py): through rclpy's typed
 messages and executor the bridge kept up with about one pose in 15 at 1 kHz
 (benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
 """
@@ -24,11 +24,11 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import realtime
-from kraft_master_driver.core.passivity import LinkMonitor
+from kraft_master_driver.core.link_quality import LinkMonitor
 from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
-from kraft_master_driver.link import cdr
+from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.driver_diagnostics import link_values
-from kraft_master_driver.nodes.lifecycle import run_node
+from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
 from kraft_master_driver.nodes.ros_helpers import (
     GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)

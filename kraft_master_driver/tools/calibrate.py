@@ -234,7 +234,7 @@ class SimulatedOperator:
         The hand pushes beyond a stop in the coordinate the stop limits (q3 = th2 + th3 for
         the elbow), so the arm rests on the stop itself, not where friction leaves it.
         """
-        from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
+        from kraft_master_driver.simulation.master.model import joints_to_actuators, Workspace
         if self._home is None:
             self._home = Workspace().home()
         known = np.radians(np.array(station.joints_deg, dtype=float))
@@ -435,7 +435,7 @@ def _stations(args, parser):
 
 def _simulator(args):
     """Return the built-in simulator of --port sim, not started."""
-    from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+    from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
     truth = ArmCalibration.from_yaml(args.sim_calibration) if args.sim_calibration else None
     try:
         return SimulatedKraftMaster(arm=args.arm, calibration=truth, operator='hold',

@@ -32,7 +32,7 @@ from kraft_master_driver.core.process import STOP_SIGNALS
 from kraft_master_driver.nodes.arm_sim import PARAMETERS as MUJOCO_ARM_PARAMETERS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
-from kraft_master_driver.simulation.model import Workspace
+from kraft_master_driver.simulation.master.model import Workspace
 import numpy as np
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -47,7 +47,7 @@ SECTION_8_POTS = ((2086, 2683, 992, 1595, 1715, 2025), (2622, 1610, 2268, 1829, 
 # normal one, beside the MuJoCo arm and the bridge (1.8 of 2 cores), its replies came late and
 # the loop ran at 903 to 978 Hz at the median in ten demos; at this one, 993 to 999 in three.
 # Where the OS refuses it, the simulator says so and runs at the normal one.
-SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+SIMULATOR = [sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
              '--operator', 'push',
              '--priority', str(DRIVER_PARAMETERS['loop_priority'].default)]
 DRIVER = [sys.executable, '-m', 'kraft_master_driver.nodes.driver', '--ros-args',

@@ -31,7 +31,7 @@ from harness import dds_shm
 from harness.driver import (ClientNode, DriverProcess, installed_env, next_domain_id, wait_for,
                             WAIT_S)
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState

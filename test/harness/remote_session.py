@@ -37,8 +37,8 @@ from harness.netns import TwoHosts
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
-from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.model import joints_to_actuators, Workspace
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
 
 RECORDER = pathlib.Path(__file__).resolve().parent / 'remote_recorder.py'
@@ -160,7 +160,7 @@ def point_mass_arm():
 def panda_arm():
     """Return the MuJoCo Panda (kraft_master_arm_sim, its defaults) and its table."""
     # MuJoCo and the demo's settings only where the Panda is asked for.
-    from kraft_master_driver.simulation.arm_physics import PandaArm
+    from kraft_master_driver.simulation.arms.panda import PandaArm
     from kraft_master_driver.tools.demo import BRIDGE as DEMO_BRIDGE, MUJOCO_BRIDGE, TABLE_Z
     start = PandaArm().tool_position()
     # The bridge as the demo sets it for the Panda: its tool, the box in front of it.

@@ -7,7 +7,7 @@ import signal
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from harness.driver import DriverProcess, next_domain_id, RosClient, vector_parameter
-from kraft_master_driver.simulation.arm_physics import PandaArm, Table
+from kraft_master_driver.simulation.arms.panda import PandaArm, Table
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

@@ -11,7 +11,7 @@ import sys
 from geometry_msgs.msg import TwistStamped
 from harness import dds_shm, REPO
 from harness.driver import DriverProcess, next_domain_id, RosClient
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import pytest
 
 pytestmark = pytest.mark.integration

@@ -8,7 +8,7 @@ import shlex
 
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 from harness import PACKAGE, REPO
-from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names
 import pytest
 

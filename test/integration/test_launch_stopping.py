@@ -18,7 +18,7 @@ import sys
 
 from harness.driver import installed_env, next_domain_id, RosClient, wait_for, WAIT_S
 from harness.reaper import Reaped
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools.urdf_model import driver_names
 import pytest
 

@@ -16,10 +16,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from harness.driver import (
     DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for)
-from kraft_master_driver.core import kinematics
+from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 from rcl_interfaces.msg import ParameterType
@@ -120,7 +120,7 @@ def test_pose_is_forward_kinematics_of_the_same_sample(session):
         position = [pose.position.x, pose.position.y, pose.position.z]
         np.testing.assert_allclose(position, transform[:3, 3], atol=1e-9)
         q = pose.orientation
-        expected = kinematics.rotation_to_quaternion(transform)
+        expected = rotations.rotation_to_quaternion(transform)
         np.testing.assert_allclose([q.x, q.y, q.z, q.w], expected, atol=1e-9)
     assert matched > 20
 
@@ -232,9 +232,9 @@ def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
 def test_a_shutdown_that_hangs_still_ends_the_process():
     # As if a DDS teardown never returned: the process ends after SHUTDOWN_LIMIT_S, saying so.
     script = ('import sys, time\n'
-              'from kraft_master_driver.nodes import lifecycle\n'
-              'lifecycle.SHUTDOWN_LIMIT_S = 0.2\n'
-              'lifecycle._exit_if_stuck("kraft_master_node", 0)\n'
+              'from kraft_master_driver.nodes import node_process\n'
+              'node_process.SHUTDOWN_LIMIT_S = 0.2\n'
+              'node_process._exit_if_stuck("kraft_master_node", 0)\n'
               'time.sleep(60)\n')
     result = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                             timeout=50)

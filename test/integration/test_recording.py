@@ -22,7 +22,7 @@ from kraft_master_driver.bag.reader import read_topics
 from kraft_master_driver.bag.recorder import BagRecorder, qos_profile, STORAGES
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools import record, report
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory

@@ -20,7 +20,7 @@ from harness import dds_shm
 from harness.driver import (AT_A_TERMINAL, DriverProcess, executable, installed_env,
                             next_domain_id, RosClient, wait_for, WAIT_S)
 from harness.reaper import descendants
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import pytest
 
 pytestmark = pytest.mark.integration

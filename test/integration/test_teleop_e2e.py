@@ -21,10 +21,11 @@ from harness.driver import (
     DriverProcess, next_domain_id, RosClient, slave_process, vector_parameter, wait_for,
     WAIT_S)
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.nodes.slave_sim import PARAMETERS, SlaveLimits
-from kraft_master_driver.simulation.model import joints_to_actuators, Workspace
-from kraft_master_driver.simulation.operators import SweepOperator
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.nodes.slave_sim import PARAMETERS
+from kraft_master_driver.simulation.arms.point_mass import SlaveLimits
+from kraft_master_driver.simulation.master.model import joints_to_actuators, Workspace
+from kraft_master_driver.simulation.master.operators import SweepOperator
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

@@ -10,7 +10,7 @@ from harness import PACKAGE, REPO
 from harness.driver import DriverProcess, next_domain_id, RosClient
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
-from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names, main, package_urdf
 import numpy as np
 import pytest

@@ -21,4 +21,4 @@ def test_the_table_has_no_stale_parameter():
 
 
 def test_every_test_the_page_names_exists():
-    assert not undefined_tests(PAGE, ('test_arm_physics.py', 'test_arm_sim_node.py'))
+    assert not undefined_tests(PAGE, ('test_panda.py', 'test_arm_sim_node.py'))

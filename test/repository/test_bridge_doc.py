@@ -26,4 +26,4 @@ def test_the_table_has_no_stale_parameter(heading):
 
 def test_every_test_the_page_names_exists():
     assert not undefined_tests(PAGE, ('test_teleoperation.py', 'test_teleop_node.py',
-                                      'test_slave_sim.py', 'test_slave_sim_node.py'))
+                                      'test_point_mass.py', 'test_slave_sim_node.py'))

@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 
 from harness import PACKAGE, REPO
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
-from kraft_master_driver.simulation.operators import OPERATORS
+from kraft_master_driver.simulation.master.operators import OPERATORS
 import pytest
 import yaml
 

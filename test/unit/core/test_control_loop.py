@@ -16,11 +16,11 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.control_loop import ControlLoop, ZERO_TORQUES
 from kraft_master_driver.core.force_reflection import BASE_FRAME, ForceReflection
-from kraft_master_driver.core.loop_statistics import VelocityFilter
 from kraft_master_driver.core.passivity import MasterPort
+from kraft_master_driver.core.velocity_filter import VelocityFilter
 from kraft_master_driver.link.device import CycleResult, KmcDevice
 from kraft_master_driver.link.protocol import PotFrame
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import pytest
 
 PERIOD_NS = 1_000_000  # 1 kHz

@@ -3,7 +3,7 @@
 """Closed-form kinematics against the paper, the DH chain, finite differences and virtual work."""
 import math
 
-from kraft_master_driver.core import kinematics
+from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration
 import numpy as np
 import pytest
@@ -401,11 +401,11 @@ def random_unit_quaternions(rng, count):
 def test_rotation_to_quaternion_random():
     rng = np.random.default_rng(13)
     for expected in random_unit_quaternions(rng, 2000):
-        quaternion = kinematics.rotation_to_quaternion(quaternion_matrix(*expected))
+        quaternion = rotations.rotation_to_quaternion(quaternion_matrix(*expected))
         np.testing.assert_allclose(quaternion, expected, atol=1e-12)
         assert math.isclose(math.fsum(q * q for q in quaternion), 1.0, abs_tol=1e-14)
     for pose in kinematics.forward(random_joints(rng, 500)):
-        quaternion = kinematics.rotation_to_quaternion(pose[:3, :3])
+        quaternion = rotations.rotation_to_quaternion(pose[:3, :3])
         assert quaternion[3] >= 0.0
         np.testing.assert_allclose(quaternion_matrix(*quaternion), pose[:3, :3], atol=1e-12)
 
@@ -420,11 +420,11 @@ def test_rotation_to_quaternion_random():
     (rot_z(math.pi), (0.0, 0.0, 1.0, 0.0)),
 ), ids=('trace', 'x', 'y', 'z', 'x_half_turn', 'y_half_turn', 'z_half_turn'))
 def test_rotation_to_quaternion_branches(rotation, expected):
-    quaternion = kinematics.rotation_to_quaternion(rotation)
+    quaternion = rotations.rotation_to_quaternion(rotation)
     assert quaternion[3] >= 0.0
     np.testing.assert_allclose(np.abs(quaternion), np.abs(expected), atol=1e-15)
     np.testing.assert_allclose(quaternion_matrix(*quaternion), rotation, atol=1e-15)
-    assert kinematics.rotation_to_quaternion(rotation.tolist()) == quaternion
+    assert rotations.rotation_to_quaternion(rotation.tolist()) == quaternion
 
 
 def test_joint_limits_table_ii():

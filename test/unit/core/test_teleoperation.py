@@ -3,10 +3,8 @@
 """The teleoperation bridge's logic without ROS: states, registration, clutch, force path."""
 import math
 
-from hypothesis import given, settings as hypothesis_settings, strategies as st
-from kraft_master_driver.core.teleoperation import (
-    quaternion_to_rotation, rotation_from_vector, rotation_parameter, rotation_vector,
-    rpy_to_rotation, Settings, Teleoperation)
+from kraft_master_driver.core.rotations import quaternion_to_rotation
+from kraft_master_driver.core.teleoperation import Settings, Teleoperation
 import numpy as np
 import pytest
 
@@ -63,40 +61,6 @@ class Session:
         assert self.bridge.enable(self.now) is None
         self.feed()
         return self
-
-
-# -- rotations ------------------------------------------------------------------------------
-
-def test_roll_pitch_yaw_and_quaternion_give_the_same_rotation():
-    yaw = rotation_parameter('r', [0.0, 0.0, math.pi / 2])
-    np.testing.assert_allclose(yaw @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(rotation_parameter('r', about_z(math.pi / 2)), yaw, atol=1e-12)
-    pitch = rpy_to_rotation(0.0, math.pi / 2, 0.0)
-    np.testing.assert_allclose(pitch @ [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], atol=1e-12)
-
-
-@pytest.mark.parametrize('values, fragment', [
-    ([1.0, 2.0], '3 finite values'), ([0.0, math.nan, 0.0], '3 finite values'),
-    ([0.0, 0.0, 0.0, 2.0], 'not of unit length')])
-def test_a_bad_rotation_parameter_is_refused_naming_it(values, fragment):
-    with pytest.raises(ValueError, match=f'base_rotation.*{fragment}|{fragment}'):
-        rotation_parameter('base_rotation', values)
-
-
-@hypothesis_settings(max_examples=100, deadline=None)
-@given(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3), st.floats(0.0, math.pi - 1e-3))
-def test_rotation_vector_inverts_rodrigues(axis, angle):
-    axis = np.array(axis)
-    if np.linalg.norm(axis) < 1e-3:
-        return
-    vector = angle * axis / np.linalg.norm(axis)
-    np.testing.assert_allclose(rotation_vector(rotation_from_vector(vector)), vector, atol=1e-7)
-
-
-def test_rotation_vector_of_a_half_turn():
-    half_turn = quaternion_to_rotation((0.0, 1.0, 0.0, 0.0))
-    np.testing.assert_allclose(np.abs(rotation_vector(half_turn)), [0.0, math.pi, 0.0],
-                               atol=1e-9)
 
 
 @pytest.mark.parametrize('settings, fragment', [

@@ -12,7 +12,7 @@ import time
 from kraft_master_driver.core.calibration import POT_MAX
 from kraft_master_driver.link.device import CycleResult, KmcDevice, LinkError
 from kraft_master_driver.link.protocol import KraftDefaultCodec, STATUS_AMPLIFIERS_ENABLED
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import pytest
 
 SCALE = (1000.0, 500.0, 2000.0, 250.0, 100.0)

@@ -18,10 +18,10 @@ from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
-from kraft_master_driver.simulation.model import (
+from kraft_master_driver.simulation.master.model import (
     actuators_to_joints, joints_to_actuators, Workspace)
-from kraft_master_driver.simulation.operators import PushOperator
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.operators import PushOperator
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 import serial
@@ -475,7 +475,8 @@ def running_cli(*arguments, wrapper=()):
     """Run the simulator CLI as a subprocess of this Python; kill it and close its pipes after."""
     env = dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED='1')
     process = subprocess.Popen(
-        [*wrapper, sys.executable, '-m', 'kraft_master_driver.simulation.simulator', *arguments],
+        [*wrapper, sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
+         *arguments],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
     try:
         yield process
@@ -581,7 +582,7 @@ def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
 
 def test_cli_refuses_an_unreadable_calibration():
     result = subprocess.run(
-        [sys.executable, '-m', 'kraft_master_driver.simulation.simulator',
+        [sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
          '--calibration', '/no/such.yaml'],
         capture_output=True, text=True, timeout=60, env=dict(os.environ, PYTHONPATH=str(REPO)))
     assert result.returncode == 2

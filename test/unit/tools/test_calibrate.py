@@ -10,7 +10,7 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import (
     ArmCalibration, CalibrationError, read_parameter_file)
 from kraft_master_driver.link.device import KmcDevice
-from kraft_master_driver.simulation.simulator import SimulatedKraftMaster
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools import calibrate
 import numpy as np
 import pytest

@@ -4,25 +4,25 @@
 import csv
 import math
 
+from harness.session_bags import SAMPLES, write_bag
 from kraft_master_driver.bag.common import (
-    BAG_VERSION, DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, typestore,
-    WRENCH_STAMPED)
+    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, typestore, WRENCH_STAMPED)
 from kraft_master_driver.bag.decoding import decode_cdr, LAYOUTS
 from kraft_master_driver.bag.reader import read_topics
 from kraft_master_driver.bag.recorder import BagRecorder, qos_profile
 from kraft_master_driver.bag.samples import simulate_samples, write_samples
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
-from kraft_master_driver.tools import report
+from kraft_master_driver.core.rotations import rotation_to_quaternion
+from kraft_master_driver.tools import report, report_data, report_plots
 from matplotlib.image import imread
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from rosbags.rosbag2 import Reader
+from rosbags.rosbag2.enums import CompressionMode
 
 STORE = typestore()
 TYPES = STORE.types
-SAMPLES = 3000
 
 
 def header(rng):
@@ -123,36 +123,13 @@ def test_malformed_messages_are_counted_not_raised():
     assert len(diagnostics) == 0 and diagnostics.malformed == 2
 
 
-def write_bag(path, storage, arms, compression=None, samples=SAMPLES):
-    """Write a synthetic session: {namespace: (arm, seed)}; return {namespace: Samples}."""
-    if compression is None:
-        written = {}
-        with BagRecorder(path, storage) as recorder:
-            for namespace, (arm, seed) in arms.items():
-                written[namespace] = simulate_samples(samples, arm, seed=seed)
-                write_samples(recorder, namespace, written[namespace],
-                              diagnostics_every=samples // 4)
-        return written
-    plain = path.with_name(path.name + '_plain')
-    written = write_bag(plain, storage, arms, samples=samples)
-    writer = Writer(path, version=BAG_VERSION,
-                    storage_plugin=StoragePlugin[storage.upper()])
-    writer.set_compression(compression, CompressionFormat.ZSTD)
-    with Reader(plain) as reader, writer:
-        connections = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
-                       for c in reader.connections}
-        for connection, log_time, data in reader.messages():
-            writer.write(connections[connection.id], log_time, data)
-    return written
-
-
 @pytest.mark.parametrize('storage, compression', [
     ('mcap', None), ('sqlite3', None), ('mcap', CompressionMode.STORAGE),
     ('mcap', CompressionMode.MESSAGE), ('sqlite3', CompressionMode.FILE)])
 def test_read_topics_equals_rosbags_reader(tmp_path, storage, compression):
     bag = tmp_path / 'bag'
     write_bag(bag, storage, {'/left': ('left', 1), '': ('right', 2)}, compression, samples=400)
-    topics = [f'{ns}/{name}' for ns in ('/left', '') for name in report.ARM_TOPICS]
+    topics = [f'{ns}/{name}' for ns in ('/left', '') for name in report_data.ARM_TOPICS]
     data = read_topics(bag, topics + ['/absent'])
     assert sorted(data) == sorted(topics)
     received = {topic: ([], []) for topic in topics}
@@ -268,7 +245,7 @@ def test_recalibration_from_the_recorded_pots(tmp_path, capsys):
     poses = kinematics.forward(position, 'right')
     recal = [names.index(n) for n in ('recal_x', 'recal_y', 'recal_z')]
     np.testing.assert_allclose(rows[:, recal], poses[:, :3, 3], atol=1e-9)
-    quaternions = np.array([kinematics.rotation_to_quaternion(p) for p in poses])
+    quaternions = np.array([rotation_to_quaternion(p) for p in poses])
     np.testing.assert_allclose(rows[:, -4:], quaternions, atol=1e-9)
 
 
@@ -287,50 +264,6 @@ def test_not_a_bag_exits_1(tmp_path, capsys):
     (tmp_path / 'empty').mkdir()
     assert report.main([str(tmp_path / 'empty')]) == 1
     assert 'cannot read the bag' in capsys.readouterr().err
-
-
-def test_csv_numbers_read_back_as_written():
-    rng = np.random.default_rng(9)
-    values = np.concatenate([rng.normal(0.0, 10.0, 1000), rng.normal(0.0, 1e-7, 100),
-                             [0.0, -0.0, 1.0, -1.0, 0.5, -4e-10, 123456.0, math.nan, math.inf]])
-    integers = rng.integers(-2**62, 2**62, len(values))
-    lines = report.csv_lines([(values, 9), (integers, 0), (values, 3)]).decode().splitlines()
-    assert len(lines) == len(values)
-    for line, value, integer in zip(lines, values.tolist(), integers.tolist()):
-        first, second, third = line.split(',')
-        assert int(second) == integer
-        if math.isfinite(value):
-            assert float(first) == pytest.approx(value, abs=0.5e-9, rel=1e-15)
-            assert float(third) == pytest.approx(value, abs=0.5e-3, rel=1e-15)
-        else:
-            assert first == third == ''
-    assert [line.split(',')[0] for line in lines[-9:]] == [
-        '0', '0', '1', '-1', '0.5', '0', '123456', '', '']
-    # Too large for exact fixed point: written as Python writes floats.
-    assert report.csv_lines([(np.array([1e300, 2.5, math.nan]), 9)]) == b'1e+300\n2.5\n\n'
-
-
-def test_batch_quaternions_equal_the_scalar_ones():
-    rng = np.random.default_rng(10)
-    theta = rng.uniform(-math.pi, math.pi, (4000, 6))
-    rotations = kinematics.forward(theta)[:, :3, :3]
-    # Rotations of half a turn reach every branch of the conversion.
-    flips = np.array([np.diag(d) for d in ((1, -1, -1), (-1, 1, -1), (-1, -1, 1))] +
-                     [[[0, 1, 0], [1, 0, 0], [0, 0, -1]]])  # half a turn about x = y: a tie
-    rotations = np.concatenate([rotations, flips])
-    expected = np.array([kinematics.rotation_to_quaternion(r) for r in rotations])
-    np.testing.assert_allclose(report.quaternions(rotations), expected, atol=1e-12)
-
-
-def test_envelope_keeps_the_extremes_of_each_bucket():
-    t = np.arange(100_000) / 1000.0
-    values = np.sin(t)[:, None] * [1.0, 2.0]
-    values[12345] = [50.0, -50.0]
-    values[777] = math.nan
-    times, reduced = report.envelope(t, values, buckets=1000)
-    assert len(times) == len(reduced) == 2000
-    assert reduced.max(axis=0)[0] == 50.0 and reduced.min(axis=0)[1] == -50.0
-    assert not np.isnan(reduced).any()
 
 
 def test_recorder_rejects_unknown_topics_and_existing_paths(tmp_path):
@@ -357,8 +290,8 @@ def test_recorder_rejects_unknown_topics_and_existing_paths(tmp_path):
 def test_storage_file_of_a_bag_reads_as_the_bag(tmp_path, capsys):
     bag = tmp_path / 'bag'
     write_bag(bag, 'mcap', {'': ('right', 7)}, samples=300)
-    (arm_from_directory,) = report.read_arms(bag)
-    (arm_from_file,) = report.read_arms(bag / 'bag_0.mcap', [''])
+    (arm_from_directory,) = report_data.read_arms(bag)
+    (arm_from_file,) = report_data.read_arms(bag / 'bag_0.mcap', [''])
     for field in ('stamp', 'position', 'pots', 'wrist', 'wrench'):
         np.testing.assert_array_equal(getattr(arm_from_file, field),
                                       getattr(arm_from_directory, field))
@@ -424,12 +357,12 @@ def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, 
                                status('/right/kraft_master_node: right Kraft Master',
                                       **driver_values(second, 2 * second, 0.5)),
                                status('/other_node: something', **{'link timeouts': '99'})))
-    left, right = report.read_arms(bag)
+    left, right = report_data.read_arms(bag)
     assert [len(arm.diagnostics) for arm in (left, right)] == [5, 5]
-    times, errors = report.link_errors(right.diagnostics)
+    times, errors = report_data.link_errors(right.diagnostics)
     # Error counts only: not progress, not what was done to commands, not milliseconds.
     assert list(errors) == ['timeouts'] and errors['timeouts'].tolist() == [1, 2, 3, 4, 5]
-    assert report.link_errors(left.diagnostics)[1] == {}
+    assert report_data.link_errors(left.diagnostics)[1] == {}
     assert report.main([str(bag), '--out', str(tmp_path / 'out')]) == 0
     printed = capsys.readouterr().out
     assert ('5 diagnostics messages: late cycles 0, missed cycles 0, link errors: none'
@@ -441,12 +374,12 @@ def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, 
     def panel(figure, title):
         return next(ax for ax in figure.axes if ax.get_title().startswith(title))
 
-    figure = report.draw(left)
+    figure = report_plots.draw(left)
     assert [t.get_text() for t in panel(figure, 'link errors').texts] == [
         'no link errors in 5 diagnostics messages']
     assert [t.get_text() for t in panel(figure, 'late and missed').texts] == [
         'no late or missed cycles in 5 diagnostics messages']
-    figure = report.draw(right)
+    figure = report_plots.draw(right)
     errors_panel = panel(figure, 'link errors')
     assert [t.get_text() for t in errors_panel.get_legend().get_texts()] == ['timeouts (5)']
     assert max(line.get_ydata().max() for line in errors_panel.lines) == 5
@@ -458,43 +391,3 @@ def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, 
     np.testing.assert_allclose(round_trip.lines[2].get_ydata(), 1.5)
     elbow = panel(figure, 'elbow_pitch')
     assert 'upper stop, moves with th2' in [t.get_text() for t in elbow.get_legend().get_texts()]
-
-
-def test_old_relative_diagnostics_are_read_from_the_arms_own_topic(tmp_path):
-    bag = tmp_path / 'old'
-    with BagRecorder(bag, 'sqlite3') as recorder:
-        write_samples(recorder, '/left', simulate_samples(2000, 'left', seed=1),
-                      diagnostics_every=500)
-        write_samples(recorder, '', simulate_samples(2000, 'right', seed=2),
-                      diagnostics_every=250)
-    root, left = report.read_arms(bag)
-    assert (root.namespace, len(root.diagnostics)) == ('', 8)
-    assert (left.namespace, len(left.diagnostics)) == ('/left', 4)
-
-
-def test_period_histogram_keeps_every_outlier_in_a_labelled_last_bin():
-    periods = np.concatenate([np.full(9998, 1.0), [69.9, 12.0]])
-    counts, edges = report.period_histogram(periods)
-    assert counts.sum() == len(periods)
-    assert counts[-1] == 2 and edges[-2] == pytest.approx(3.0)
-    arm = report.ArmData('', 'right', np.cumsum(np.r_[0, periods * 1e6]).astype(np.int64),
-                         *(np.full((len(periods) + 1, n), np.nan) for n in (6, 6, 6, 6, 3, 4)),
-                         np.empty(0, np.int64), np.empty((0, 6)), '', [], [], [])
-    (histogram,) = [ax for ax in report.draw(arm).axes
-                    if ax.get_title().startswith('loop period')]
-    assert [t.get_text() for t in histogram.texts] == ['2 over 3.00 ms\nmax 69.9 ms']
-    assert 'max 69.900 ms' in histogram.get_title()
-
-
-def test_a_wrist_that_did_not_move_is_drawn_as_a_point_said_no_motion(tmp_path):
-    bag = tmp_path / 'session'
-    write_bag(bag, 'mcap', {'/right': ('right', 4)})
-    (moving,) = report.read_arms(bag)
-    still = moving._replace(wrist=np.repeat(moving.wrist[:1], len(moving.wrist), axis=0))
-    for arm_data, said in ((moving, []), (still, ['no motion (within 0.1 mm)'])):
-        figure = report.draw(arm_data)
-        planes = [ax for ax in figure.axes if ax.get_title().startswith('wrist path, ')]
-        assert len(planes) == 3
-        for ax in planes:
-            assert [t.get_text() for t in ax.texts] == said
-            assert ax.lines and ax.lines[0].get_marker() == ('o' if said else 'None')

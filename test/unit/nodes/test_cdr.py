@@ -7,7 +7,7 @@ import struct
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from harness.driver import next_domain_id, wait_for
 from hypothesis import given, settings, strategies as st
-from kraft_master_driver.link import cdr
+from kraft_master_driver.nodes import cdr
 import pytest
 import rclpy
 from rclpy.serialization import deserialize_message, serialize_message

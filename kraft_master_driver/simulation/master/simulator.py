@@ -34,13 +34,13 @@ from kraft_master_driver.core.calibration import ArmCalibration, CalibrationErro
 from kraft_master_driver.core.process import STOP_SIGNALS, stop_with_parent
 from kraft_master_driver.link.protocol import (
     DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec)
-from kraft_master_driver.simulation.electronics import COUPLINGS, Electronics
-from kraft_master_driver.simulation.faults import FaultInjector
-from kraft_master_driver.simulation.model import DEFAULT_DYNAMICS, DeviceModel, Workspace
-from kraft_master_driver.simulation.operators import (
+from kraft_master_driver.simulation.master.electronics import COUPLINGS, Electronics
+from kraft_master_driver.simulation.master.faults import FaultInjector
+from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS, DeviceModel, Workspace
+from kraft_master_driver.simulation.master.operators import (
     HoldOperator, make_operator, OPERATORS, PushOperator)
-from kraft_master_driver.simulation.serving import ServingThread
-from kraft_master_driver.simulation.transport import make_transport
+from kraft_master_driver.simulation.master.serving import ServingThread
+from kraft_master_driver.simulation.master.transport import make_transport
 import numpy as np
 
 MAX_CATCH_UP = 0.05  # s of model time per step; a longer idle gap is skipped, not replayed

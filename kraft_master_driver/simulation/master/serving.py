@@ -16,7 +16,7 @@ import threading
 import time
 
 from kraft_master_driver.core import realtime
-from kraft_master_driver.simulation.transport import READ_SIZE
+from kraft_master_driver.simulation.master.transport import READ_SIZE
 
 IDLE_TICK = 0.005  # s between ticks when nothing arrives
 WIRE_WAKE_EARLY = 0.0003  # s before a reply is due: select() oversleeps by ~0.1 ms

@@ -4,9 +4,9 @@
 import collections
 import math
 
-from hypothesis import given, settings, strategies as st
-from kraft_master_driver.nodes.slave_sim import (
-    ArmServo, integrate_quaternion, MAX_STEP, SlaveArm, SlaveLimits, SoftBox, Wall)
+from kraft_master_driver.core.rotations import integrate_quaternion
+from kraft_master_driver.simulation.arms.point_mass import (
+    ArmServo, MAX_STEP, SlaveArm, SlaveLimits, SoftBox, Wall)
 import numpy as np
 import pytest
 
@@ -246,23 +246,3 @@ def test_the_sensor_reading_is_the_contact_force_in_the_tool_frame():
     servo.pose_command((0.0, 0.0, 0.0), HALF_TURN_ABOUT_Z, 0.0)
     np.testing.assert_allclose(servo.sensor_wrench((1.0, 2.0, 3.0)), [-1, -2, 3, 0, 0, 0],
                                atol=1e-12)
-
-
-@settings(max_examples=50, deadline=None)
-@given(st.lists(st.floats(-3, 3), min_size=3, max_size=3), st.floats(0.0, 2.0))
-def test_quaternion_integration_turns_by_the_angle_about_the_axis(rate, seconds):
-    rate = np.array(rate)
-    q = integrate_quaternion((0.0, 0.0, 0.0, 1.0), rate, seconds)
-    angle = np.linalg.norm(rate) * seconds
-    assert np.linalg.norm(q) == pytest.approx(1.0)
-    assert abs(q[3]) == pytest.approx(abs(math.cos(angle / 2)), abs=1e-9)
-    if math.sin(angle / 2) > 1e-6:
-        np.testing.assert_allclose(np.array(q[:3]) / math.sin(angle / 2),
-                                   rate / np.linalg.norm(rate), atol=1e-6)
-
-
-def test_quaternion_integration_composes_in_the_base_frame():
-    about_z = integrate_quaternion((0.0, 0.0, 0.0, 1.0), (0.0, 0.0, math.pi / 2), 1.0)
-    then_about_x = integrate_quaternion(about_z, (math.pi / 2, 0.0, 0.0), 1.0)
-    # Rx(90) Rz(90) as (x, y, z, w).
-    np.testing.assert_allclose(then_about_x, [0.5, -0.5, 0.5, 0.5], atol=1e-12)

@@ -10,7 +10,7 @@ The device follows the hand when no torque resists, and deflects when one is app
 import math
 
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.simulation.model import JOINT_COUNT, joints_to_actuators
+from kraft_master_driver.simulation.master.model import JOINT_COUNT, joints_to_actuators
 import numpy as np
 
 OPERATORS = ('hold', 'sweep', 'random_walk', 'push')

@@ -18,7 +18,7 @@ from kraft_master_driver.core.calibration import POT_MAX
 from kraft_master_driver.link.protocol import (
     AXIS_COUNT, INT16_MAX, STATUS_AMPLIFIERS_ENABLED, STATUS_COMMAND_CLAMPED,
     STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
-from kraft_master_driver.simulation.model import JOINT_COUNT
+from kraft_master_driver.simulation.master.model import JOINT_COUNT
 import numpy as np
 
 COUPLINGS = ('actuator', 'joint')

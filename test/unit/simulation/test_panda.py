@@ -3,9 +3,9 @@
 """The MuJoCo Panda, its Cartesian impedance controller, its F/T sensor and its table."""
 import pathlib
 
-from kraft_master_driver.core.kinematics import rotation_to_quaternion
-from kraft_master_driver.core.teleoperation import rotation_from_vector, rotation_vector
-from kraft_master_driver.simulation.arm_physics import (
+from kraft_master_driver.core.rotations import (
+    rotation_from_vector, rotation_to_quaternion, rotation_vector)
+from kraft_master_driver.simulation.arms.panda import (
     franka_assets, Gains, HOME, PandaArm, SensorModel, Table, TORQUE_LIMITS,
     TORQUE_RATE_LIMIT)
 import numpy as np

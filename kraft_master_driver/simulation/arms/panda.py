@@ -28,8 +28,9 @@ import math
 import pathlib
 from typing import NamedTuple
 
-from kraft_master_driver.core.kinematics import rotation_to_quaternion
-from kraft_master_driver.core.teleoperation import quaternion_to_rotation, rotation_from_vector
+from kraft_master_driver.core.rotations import (
+    clamp_norm, quaternion_to_rotation, QUATERNION_TOLERANCE, rotation_from_vector,
+    rotation_to_quaternion)
 import mujoco
 import numpy as np
 
@@ -43,7 +44,6 @@ TORQUE_RATE_LIMIT = 1000.0  # N*m/s, as franka_example_controllers limit it (1 N
 HOME = (0.0, -0.785, 0.0, -2.356, 0.0, 0.0, 0.0)
 TIMESTEP = 0.001  # s
 TOOL_TIP = 0.153  # m from the flange along the hand's z: the bottom of the closed fingertips
-QUATERNION_TOLERANCE = 0.01
 # kg*m^2 at each joint: a geared motor's reflected inertia, which the package's model leaves
 # out. Without it the wrist's last joint (about 3e-3 kg*m^2) chattered at half the step rate
 # under the rotational damping.
@@ -82,11 +82,6 @@ def _positive(name, value, allow_zero=False):
         raise ValueError(f'{name} must be finite and {">=" if allow_zero else ">"} 0, '
                          f'got {value}')
     return float(value)
-
-
-def _clamp_norm(vector, limit):
-    length = math.sqrt(float(vector @ vector))
-    return vector * (limit / length) if length > limit else vector
 
 
 class Table(NamedTuple):
@@ -390,13 +385,13 @@ class PandaArm:
         mujoco.mj_jacSite(model, data, self._jacp, self._jacr, self.tcp)
         jacobian[:3], jacobian[3:] = self._jacp[:, arm], self._jacr[:, arm]
         dq = data.qvel[arm]
-        error[:3] = _clamp_norm(data.site_xpos[self.tcp] - self.target_position,
-                                self.gains.max_position_error)
+        error[:3] = clamp_norm(data.site_xpos[self.tcp] - self.target_position,
+                               self.gains.max_position_error)
         # The rotation from the target to the tool, as axis times angle.
         mujoco.mju_mat2Quat(quat, (data.site_xmat[self.tcp].reshape(3, 3)
                                    @ self.target_rotation.T).ravel())
         mujoco.mju_quat2Vel(error[3:], quat, 1.0)
-        error[3:] = _clamp_norm(error[3:], self.gains.max_rotation_error)
+        error[3:] = clamp_norm(error[3:], self.gains.max_rotation_error)
         task = jacobian.T @ (-self._stiffness * error - self._damping * (jacobian @ dq))
         # The posture torque less its part in the task: (I - J^T (J J^T)^-1 J) posture. J has
         # full rank away from singularities; the small diagonal keeps it bounded near them.

@@ -1,0 +1,53 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""Checks of settings, no ROS: each returns the value, or raises ValueError naming it."""
+import math
+import numbers
+
+import numpy as np
+
+
+def interval_text(lower, upper, lower_open):
+    """Return the interval as text: [0, 5], (0, inf)."""
+    return f'{"(" if lower_open else "["}{lower:g}, {upper:g}{")" if upper == math.inf else "]"}'
+
+
+def finite_real(name, value, lower=0.0, upper=math.inf, lower_open=False):
+    """Return value as a float if it is a finite real number in range, else raise ValueError."""
+    if type(value) is not float:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise ValueError(f'{name} must be a number, got {value!r}')
+        value = float(value)
+    if not (math.isfinite(value) and lower <= value <= upper
+            and not (lower_open and value == lower)):
+        raise ValueError(
+            f'{name} must be finite and in {interval_text(lower, upper, lower_open)}, got {value}')
+    return value
+
+
+def finite_reals(name, values, length, lower_open=False):
+    """Return a tuple of `length` finite non-negative floats (positive if lower_open)."""
+    if isinstance(values, (str, bytes)):
+        raise ValueError(f'{name} must be {length} numbers, got {values!r}')
+    try:
+        values = list(values)
+    except TypeError:
+        raise ValueError(f'{name} must be {length} numbers, got {values!r}') from None
+    if len(values) != length:
+        raise ValueError(f'{name} must be {length} numbers, got {len(values)}')
+    return tuple(finite_real(f'{name}[{i}]', v, lower_open=lower_open)
+                 for i, v in enumerate(values))
+
+
+def flag(name, value):
+    """Return value as a bool if it is one (numpy's too), else raise ValueError."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f'{name} must be True or False, got {value!r}')
+    return bool(value)
+
+
+def choice(name, choices, value):
+    """Return value if it is one of `choices`, else raise ValueError."""
+    if value not in choices:
+        raise ValueError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
+    return value

@@ -1,0 +1,32 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The joint velocity of the driver's loop, no ROS: finite differences through a low-pass."""
+import math
+
+
+class VelocityFilter:
+    """Joint velocity: finite differences through a first-order low-pass filter, in floats."""
+
+    def __init__(self, cutoff_hz, size=6):
+        """Filter with the given cut-off frequency."""
+        self.cutoff_hz = cutoff_hz
+        self.size = size
+        self.value = [0.0] * size
+        self._last = None
+        self._last_ns = 0
+
+    def update(self, position, time_ns):
+        """Take a sample (rad, `size` floats; time in ns); return the velocity (list, rad/s)."""
+        if self._last is not None and time_ns > self._last_ns:
+            dt = (time_ns - self._last_ns) / 1e9
+            alpha = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * dt)
+            self.value = [v + alpha * ((now - before) / dt - v)
+                          for v, now, before in zip(self.value, position, self._last)]
+        self._last = tuple(position)
+        self._last_ns = time_ns
+        return self.value
+
+    def reset(self):
+        """Forget the history (after a link fault): the next sample starts from rest."""
+        self.value = [0.0] * self.size
+        self._last = None
