@@ -9,7 +9,8 @@ remote_probe.py and remote_recorder.py the scripts run inside a host. faults: th
 suite's session and injections (benchmarks/soak.py uses them too), with wrench_source.py the
 wrench publisher it runs as a process. type_hashes: the message type hashes rosidl generated.
 dds_shm: Fast DDS's shared-memory files, and ending DDS processes so that they remove theirs.
-session_bags: synthetic recorded sessions, the bags the report's tests read.
+session_bags: synthetic recorded sessions, the bags the report's tests read. joints: joint
+vectors inside the limits.
 reaper: a command run under a subreaper, which tells the exit of all it started.
 This module: where the repository is.
 """

@@ -4,6 +4,7 @@
 import math
 import threading
 
+from harness.joints import random_theta
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.force_reflection import (
@@ -16,15 +17,6 @@ TIMEOUT_NS = 50_000_000  # the default wrench_timeout, 0.05 s
 NO_LIMIT = (1e9,) * 5
 ZERO5, ZERO6 = (0.0,) * 5, (0.0,) * 6
 WRENCH = (3.0, -2.0, 5.0, 0.3, 0.2, -0.4)
-
-
-def random_theta(rng):
-    """Return a joint vector inside the Table II limits (elbow bound coupled to th2)."""
-    lower, upper = kinematics.joint_limits()
-    theta = rng.uniform(lower, upper)
-    lower, upper = kinematics.joint_limits(theta[1])
-    theta[2] = rng.uniform(lower[2], upper[2])
-    return theta
 
 
 def random_wrench(rng):

@@ -3,19 +3,11 @@
 """Tests of the rate-mode command (core.rate_control)."""
 from math import nan
 
+from harness.joints import random_theta
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.rate_control import rate_command
 import numpy as np
 import pytest
-
-
-def random_theta(rng):
-    """Return a joint vector inside the Table II limits (elbow bound coupled to th2)."""
-    lower, upper = kinematics.joint_limits()
-    theta = rng.uniform(lower, upper)
-    lower, upper = kinematics.joint_limits(theta[1])
-    theta[2] = rng.uniform(lower[2], upper[2])
-    return theta
 
 
 @pytest.mark.parametrize('seed', range(10))
