@@ -10,6 +10,7 @@ import functools
 import struct
 
 from rosbags.typesys import get_typestore, Stores
+from rosbags.typesys.store import Typestore
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
@@ -37,6 +38,6 @@ class SessionError(Exception):
 
 
 @functools.cache
-def typestore():
+def typestore() -> Typestore:
     """Return the rosbags type store of ROS 2 Jazzy."""
     return get_typestore(Stores.ROS2_JAZZY)

@@ -8,19 +8,27 @@ JointState, PoseStamped, WrenchStamped and TwistStamped is decoded with numpy, e
 rosbags' deserialisation message by message. Other types (DiagnosticArray) are deserialised
 one by one with rosbags. Malformed messages are counted and skipped, never raised.
 """
+from collections.abc import Sequence
 import struct
-from typing import NamedTuple
+from typing import Any, Literal, NamedTuple
 
 from kraft_master_driver.bag.common import (
     JOINT_STATE, POSE_STAMPED, TWIST_STAMPED, typestore, WRENCH_STAMPED)
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 from rosbags.serde import SerdeError
 
 # Fixed-layout message types: (field, kind) in CDR order. Kinds: 'time' (int32 sec, uint32
 # nanosec), 'string', 'strings' (sequence of strings), 'doubles' (sequence of float64), or
 # an int n for n consecutive float64 (nested structs of doubles only).
-_HEADER = (('stamp', 'time'), ('frame_id', 'string'))
-LAYOUTS = {
+_Kind = Literal['time', 'string', 'strings', 'doubles'] | int
+_Fields = tuple[tuple[str, _Kind], ...]
+# The decoded arrays of a fixed-layout topic: 'stamp' in int64 ns, the rest float64.
+_Arrays = dict[str, NDArray[np.int64] | NDArray[np.float64]]
+# The strings of a fixed-layout message: frame_id, and name (a sequence of strings).
+_Strings = dict[str, str | list[str]]
+_HEADER: _Fields = (('stamp', 'time'), ('frame_id', 'string'))
+LAYOUTS: dict[str, _Fields] = {
     JOINT_STATE: _HEADER + (('name', 'strings'), ('position', 'doubles'),
                             ('velocity', 'doubles'), ('effort', 'doubles')),
     POSE_STAMPED: _HEADER + (('position', 3), ('orientation', 4)),
@@ -36,12 +44,12 @@ class _Malformed(Exception):
 class _Layout(NamedTuple):
     little: bool
     stamp: int  # offset of the stamp
-    doubles: dict  # field -> (offset, count)
-    strings: dict  # field -> the message's str or list of str
-    structure: np.ndarray  # offsets of the bytes that fix the layout (header, lengths)
+    doubles: dict[str, tuple[int, int]]  # field -> (offset, count)
+    strings: _Strings  # field -> the message's str or list of str
+    structure: NDArray[np.int64]  # offsets of the bytes that fix the layout (header, lengths)
 
 
-def _layout(data, fields):
+def _layout(data: bytes, fields: _Fields) -> _Layout:
     """Return the _Layout of one message `data` (bytes); raise _Malformed."""
     size = len(data)
     if size < 4 or data[0] != 0 or data[1] not in (0, 1):
@@ -49,21 +57,22 @@ def _layout(data, fields):
     little = data[1] == 1
     uint32 = struct.Struct('<I' if little else '>I').unpack_from
     structure = [0, 1, 2, 3]
-    doubles, strings = {}, {}
+    doubles: dict[str, tuple[int, int]] = {}
+    strings: _Strings = {}
     position = stamp = 4
 
-    def align(position, alignment):
+    def align(position: int, alignment: int) -> int:
         # CDR aligns relative to the end of the 4-byte encapsulation header.
         return 4 + ((position - 4 + alignment - 1) & -alignment)
 
-    def read_count(position):
+    def read_count(position: int) -> tuple[int, int]:
         position = align(position, 4)
         if position + 4 > size:
             raise _Malformed('truncated')
         structure.extend(range(position, position + 4))
         return uint32(data, position)[0], position + 4
 
-    def read_string(position):
+    def read_string(position: int) -> tuple[str, int]:
         length, position = read_count(position)
         end = position + length
         if length < 1 or end > size or data[end - 1] != 0:
@@ -83,10 +92,11 @@ def _layout(data, fields):
             count, position = read_count(position)
             if count > size:
                 raise _Malformed('bad sequence length')
-            strings[name] = []
+            names: list[str] = []
+            strings[name] = names
             for _ in range(count):
                 value, position = read_string(position)
-                strings[name].append(value)
+                names.append(value)
         else:
             count, position = read_count(position) if kind == 'doubles' else (kind, position)
             if count:
@@ -98,7 +108,7 @@ def _layout(data, fields):
     return _Layout(little, stamp, doubles, strings, np.array(structure))
 
 
-def _view(block, fields):
+def _view(block: NDArray[np.uint8], fields: dict[str, tuple[DTypeLike, int]]) -> NDArray[Any]:
     """View the rows of `block` (N, length) uint8 as records: {name: (dtype, offset)}."""
     dtype = np.dtype({'names': list(fields), 'formats': [f for f, _ in fields.values()],
                       'offsets': [offset for _, offset in fields.values()],
@@ -106,24 +116,26 @@ def _view(block, fields):
     return block.view(dtype)[:, 0]
 
 
-def _same_structure(block, layout):
+def _same_structure(block: NDArray[np.uint8], layout: _Layout) -> NDArray[np.bool_]:
     """Return which rows of `block` have the first row's layout (header and lengths)."""
     words = _view(block, {f'w{i}': ('<u4', start)
                           for i, start in enumerate(layout.structure[::4].tolist())})
     same = np.ones(len(block), bool)
-    for name in words.dtype.names:
+    for name in words.dtype.names:  # type: ignore[union-attr]  # a record dtype has names
         same &= words[name] == words[name][0]
     return same
 
 
-def _decode_rows(block, layout):
+def _decode_rows(block: NDArray[np.uint8], layout: _Layout) -> _Arrays:
     """Decode the rows of `block` (N, length) uint8 that all have `layout`."""
     order = '<' if layout.little else '>'
-    fields = {'sec': (order + 'i4', layout.stamp), 'nanosec': (order + 'u4', layout.stamp + 4)}
+    fields: dict[str, tuple[DTypeLike, int]] = {
+        'sec': (order + 'i4', layout.stamp), 'nanosec': (order + 'u4', layout.stamp + 4)}
     fields.update({name: ((order + 'f8', (count,)), offset)
                    for name, (offset, count) in layout.doubles.items() if count})
     records = _view(block, fields)
-    decoded = {'stamp': records['sec'].astype(np.int64) * 1_000_000_000 + records['nanosec']}
+    decoded: _Arrays = {
+        'stamp': records['sec'].astype(np.int64) * 1_000_000_000 + records['nanosec']}
     for name, (_, count) in layout.doubles.items():
         decoded[name] = (records[name].astype(np.float64) if count else
                          np.empty((len(block), 0)))
@@ -135,18 +147,18 @@ class TopicData(NamedTuple):
 
     topic: str
     msgtype: str
-    log_time: np.ndarray  # (N,) int64 ns: when the recorder received each message
-    fields: dict  # fixed layouts: 'stamp' (N,) int64 ns and each float64 field (N, count)
-    strings: dict  # fixed layouts: frame_id and name of the first message
-    messages: list  # other types: the messages deserialised by rosbags
+    log_time: NDArray[np.int64]  # (N,) int64 ns: when the recorder received each message
+    fields: _Arrays  # fixed layouts: 'stamp' (N,) int64 ns and each float64 field (N, count)
+    strings: _Strings  # fixed layouts: frame_id and name of the first message
+    messages: list[object]  # other types: the messages deserialised by rosbags
     malformed: int  # messages skipped because they do not parse as msgtype
 
-    def __len__(self):
+    def __len__(self) -> int:
         """Return the number of messages."""
         return len(self.log_time)
 
 
-def _stack(arrays):
+def _stack(arrays: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
     """Stack (n_i, count_i) arrays into one, padding shorter rows with NaN."""
     width = max(array.shape[1] for array in arrays)
     if all(array.shape[1] == width for array in arrays):
@@ -159,14 +171,17 @@ def _stack(arrays):
 class TopicDecoder:
     """Decodes the raw messages of one topic batch by batch; result() gives its TopicData."""
 
-    def __init__(self, topic, msgtype):
+    def __init__(self, topic: str, msgtype: str) -> None:
         self.topic, self.msgtype = topic, msgtype
         self._fields = LAYOUTS.get(msgtype)
-        self._times, self._parts = [], []
-        self._strings = None  # (receive time, strings) of the earliest message decoded
+        self._times: list[NDArray[np.int64]] = []
+        # Decoded rows (_Arrays) of a fixed layout, or the messages rosbags deserialised.
+        self._parts: list[Any] = []
+        # (receive time, strings) of the earliest message decoded
+        self._strings: tuple[int, _Strings] | None = None
         self.malformed = 0
 
-    def add(self, times, block):
+    def add(self, times: NDArray[np.int64], block: NDArray[np.uint8]) -> None:
         """Decode equal-length messages: block (N, length) uint8, log times (N,) int64."""
         if self._fields is None:
             self._deserialise(times, block)
@@ -189,7 +204,7 @@ class TopicDecoder:
             self._parts.append(_decode_rows(block[same], layout))
             times, block = times[~same], block[~same]
 
-    def add_list(self, times, messages):
+    def add_list(self, times: NDArray[np.int64], messages: list[bytes]) -> None:
         """Decode messages given as a list of bytes, received at times (N,) int64."""
         lengths = np.fromiter(map(len, messages), np.int64, len(messages))
         for length in np.unique(lengths).tolist():
@@ -198,7 +213,7 @@ class TopicDecoder:
                             [messages[i] for i in rows])
             self.add(times[rows], np.frombuffer(data, np.uint8).reshape(len(rows), length))
 
-    def _deserialise(self, times, block):
+    def _deserialise(self, times: NDArray[np.int64], block: NDArray[np.uint8]) -> None:
         store = typestore()
         for log_time, row in zip(times.tolist(), block):
             try:
@@ -209,7 +224,7 @@ class TopicDecoder:
             self._times.append(np.array([log_time], np.int64))
             self._parts.append(message)
 
-    def result(self):
+    def result(self) -> TopicData:
         """Return the TopicData of all messages added, sorted by log time (stable)."""
         if not self._parts:
             return TopicData(self.topic, self.msgtype, np.empty(0, np.int64), {}, {}, [],
@@ -228,11 +243,13 @@ class TopicDecoder:
             arrays = [part[name] for part in self._parts]
             values = np.concatenate(arrays) if name == 'stamp' else _stack(arrays)
             fields[name] = values if order is None else values[order]
+        assert self._strings is not None  # set with the first rows decoded
         return TopicData(self.topic, self.msgtype, log_time, fields, self._strings[1], [],
                          self.malformed)
 
 
-def decode_cdr(messages, msgtype, log_times=None, topic=''):
+def decode_cdr(messages: list[bytes], msgtype: str, log_times: ArrayLike | None = None,
+               topic: str = '') -> TopicData:
     """
     Decode raw CDR messages (a list of bytes) of `msgtype` into a TopicData.
 

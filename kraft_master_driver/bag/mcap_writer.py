@@ -8,11 +8,17 @@ offered_qos_profiles and topic_type_hash, messages with receive and send times, 
 metadata in a 'rosbag2' record, and a summary section with statistics.
 """
 import collections
+from collections.abc import Iterable
 from importlib import metadata as package_metadata
+from pathlib import Path
 import struct
+from typing import TYPE_CHECKING
 import zlib
 
 from kraft_master_driver.bag.common import INFINITE_NS, MCAP_MAGIC, MCAP_RECORD
+
+if TYPE_CHECKING:
+    from kraft_master_driver.bag.recorder import _Topic
 
 _MCAP_CHUNK_BYTES = 768 * 1024  # the mcap C++ writer's default chunk size
 _MESSAGE_HEADER_STRUCT = struct.Struct('<HIQQ')  # channel, sequence, log time, publish time
@@ -22,20 +28,20 @@ except package_metadata.PackageNotFoundError:
     VERSION = 'from source'
 
 
-def _record_header(opcode, length):
+def _record_header(opcode: int, length: int) -> bytes:
     return MCAP_RECORD.pack(opcode, length)
 
 
-def _record(opcode, body):
+def _record(opcode: int, body: bytes) -> bytes:
     return MCAP_RECORD.pack(opcode, len(body)) + body
 
 
-def _string(text):
+def _string(text: str) -> bytes:
     data = text.encode()
     return struct.pack('<I', len(data)) + data
 
 
-def _string_map(pairs):
+def _string_map(pairs: Iterable[tuple[str, str]]) -> bytes:
     data = b''.join(_string(key) + _string(value) for key, value in pairs)
     return struct.pack('<I', len(data)) + data
 
@@ -45,22 +51,25 @@ class McapWriter:
 
     extension = '.mcap'
 
-    def __init__(self, path):
+    def __init__(self, path: Path) -> None:
         """Create the file `path` (it must not exist) and write its header."""
         self.file = open(path, 'xb')
         self.file.write(MCAP_MAGIC + _record(0x01, _string('ros2') +
                                              _string(f'kraft_master_driver {VERSION}')))
-        self.schemas, self.channels, self.chunk_indexes = {}, {}, []
-        self.channel_counts = collections.Counter()
+        self.schemas: dict[str, bytes] = {}  # message type -> its Schema record
+        self.channels: dict[int, bytes] = {}  # channel id -> its Channel record
+        self.chunk_indexes: list[bytes] = []
+        self.channel_counts: collections.Counter[int] = collections.Counter()
         self.time_span = [INFINITE_NS, 0]
         self._new_chunk()
 
-    def _new_chunk(self):
+    def _new_chunk(self) -> None:
         self.chunk = bytearray()
         self.chunk_span = [INFINITE_NS, 0]
-        self.chunk_index = collections.defaultdict(list)  # channel id -> [log time, offset]
+        # channel id -> [log time, offset]
+        self.chunk_index: collections.defaultdict[int, list[int]] = collections.defaultdict(list)
 
-    def add_topic(self, topic_id, topic):
+    def add_topic(self, topic_id: int, topic: '_Topic') -> None:
         """Write the channel of `topic` (a recorder's _Topic), and its type's schema if new."""
         if topic.msgtype not in self.schemas:
             self.schemas[topic.msgtype] = _record(0x03, struct.pack(
@@ -74,7 +83,7 @@ class McapWriter:
                  ('topic_type_hash', topic.type_hash)))))
         self.chunk += self.channels[topic_id]
 
-    def write(self, topic_id, log_time, publish_time, data):
+    def write(self, topic_id: int, log_time: int, publish_time: int, data: bytes) -> None:
         """Add a message to the chunk; write the chunk out when it is full."""
         self.chunk_index[topic_id] += (log_time, len(self.chunk))
         self.chunk += _record_header(0x05, 22 + len(data))
@@ -86,7 +95,7 @@ class McapWriter:
         if len(self.chunk) >= _MCAP_CHUNK_BYTES:
             self._write_chunk()
 
-    def _write_chunk(self):
+    def _write_chunk(self) -> None:
         if not self.chunk_index:
             return
         start = self.file.tell()
@@ -107,7 +116,7 @@ class McapWriter:
             '<QQ', len(self.chunk), len(self.chunk))))
         self._new_chunk()
 
-    def close(self, metadata):
+    def close(self, metadata: str) -> None:
         """Write the last chunk, the bag's `metadata` (YAML), the summary and the footer."""
         self._write_chunk()
         metadata_start = self.file.tell()
@@ -139,6 +148,6 @@ class McapWriter:
         self.file.write(summary + offsets + footer + struct.pack('<I', crc) + MCAP_MAGIC)
         self.file.close()
 
-    def abort(self):
+    def abort(self) -> None:
         """Close the file as it is."""
         self.file.close()

@@ -9,20 +9,23 @@ decoding.py turns them into TopicData. Bags compressed by rosbag2 (file or messa
 are read through rosbags' Reader.
 """
 import collections
+from collections.abc import Iterable, Iterator
+import os
 from pathlib import Path
 import sqlite3
 import struct
 
 from kraft_master_driver.bag.common import MCAP_MAGIC, MCAP_RECORD, SessionError
-from kraft_master_driver.bag.decoding import TopicDecoder
+from kraft_master_driver.bag.decoding import TopicData, TopicDecoder
 from lz4.frame import decompress as lz4_decompress
 import numpy as np
+from numpy.typing import NDArray
 from rosbags.rosbag2 import Reader
 from rosbags.rosbag2.errors import ReaderError
 import yaml
 
 try:
-    from compression import zstd  # Python 3.14
+    from compression import zstd  # type: ignore[import-not-found]  # Python 3.14
 except ImportError:
     from backports import zstd
 
@@ -36,7 +39,8 @@ _MESSAGE_RECORD = np.dtype({  # a Message record up to its data
     'offsets': [0, 1, 9, 11, 15, 23], 'itemsize': 31})
 
 
-def _add_packed(decoder, data, starts, lengths, times):
+def _add_packed(decoder: TopicDecoder, data: NDArray[np.uint8], starts: NDArray[np.int64],
+                lengths: NDArray[np.int64], times: NDArray[np.int64]) -> None:
     """Decode the messages data[starts[i]:starts[i] + lengths[i]], received at times[i]."""
     for length in np.unique(lengths).tolist():
         rows = np.flatnonzero(lengths == length)
@@ -48,7 +52,8 @@ def _add_packed(decoder, data, starts, lengths, times):
         decoder.add(times[rows], windows[starts[rows]])
 
 
-def _mcap_messages(data, offsets, channels, decoders):
+def _mcap_messages(data: NDArray[np.uint8], offsets: NDArray[np.int64], channels: dict[int, str],
+                   decoders: dict[str, TopicDecoder]) -> None:
     """Decode the message records at `offsets` of `data` (uint8) whose topic is decoded."""
     offsets = offsets[offsets + _MESSAGE_RECORD.itemsize <= len(data)]
     if not offsets.size:
@@ -60,7 +65,7 @@ def _mcap_messages(data, offsets, channels, decoders):
     valid = (headers['opcode'] == _OP_MESSAGE) & (starts + lengths <= len(data))
     channel_ids = headers['channel']
     for channel_id in np.unique(channel_ids).tolist():
-        decoder = decoders.get(channels.get(channel_id))
+        decoder = decoders.get(channels.get(channel_id))  # type: ignore[arg-type]  # unknown: None
         if decoder is not None:
             of_channel = channel_ids == channel_id
             decoder.malformed += int(np.count_nonzero(of_channel & ~valid))
@@ -69,30 +74,36 @@ def _mcap_messages(data, offsets, channels, decoders):
                         headers['log_time'][rows].astype(np.int64))
 
 
-def _decompress(data, compression):
+def _decompress(data: bytes, compression: str) -> bytes:
+    decompressed: bytes  # untyped to mypy: lz4, and zstd (its first import is Python 3.14's)
     if compression == 'zstd':
-        return zstd.decompress(data)
+        decompressed = zstd.decompress(data)
+        return decompressed
     if compression == 'lz4':
-        return lz4_decompress(data)
+        decompressed = lz4_decompress(data)
+        return decompressed
     raise SessionError(f'unsupported MCAP chunk compression {compression!r}')
 
 
 class _McapFile:
     """An MCAP file, mapped into memory, read for the topics of some decoders."""
 
-    def __init__(self, path):
+    def __init__(self, path: Path) -> None:
         self.path = path
         try:
             # A plain ndarray view of the map: slicing a memmap subclass costs more.
             self.data = np.memmap(path, np.uint8, mode='r').view(np.ndarray)
         except ValueError:
             raise SessionError(f'{path}: empty file, not MCAP') from None
-        self.buffer = memoryview(self.data)  # for struct: cheaper than the array itself
+        # For struct: cheaper than the array itself. numpy types an array a Buffer from
+        # Python 3.12 on, and the check is for 3.11.
+        self.buffer = memoryview(self.data)  # type: ignore[arg-type]  # an array is a buffer
         if len(self.data) < 16 or self.buffer[:8] != MCAP_MAGIC:
             raise SessionError(f'{path}: not an MCAP file')
-        self.channels = {}
+        self.channels: dict[int, str] = {}
 
-    def records(self, buffer, start, end):
+    def records(self, buffer: memoryview, start: int,
+                end: int) -> Iterator[tuple[int, int, int]]:
         """Yield (position, opcode, content length) of the records in buffer[start:end]."""
         position = start
         while position < end:
@@ -110,9 +121,10 @@ class _McapFile:
             yield position, opcode, length
             position += 9 + length
 
-    def read(self, decoders):
+    def read(self, decoders: dict[str, TopicDecoder]) -> None:
         """Decode the messages of the topics in `decoders`."""
-        chunks, offsets = [], []  # offsets: message records in the file, not compressed
+        chunks: list[tuple[int, list[int]]] = []  # (position, its message indexes' positions)
+        offsets: list[NDArray[np.int64]] = []  # message records in the file, not compressed
         for position, opcode, _ in self.records(self.buffer, 8, len(self.data) - 8):
             if opcode == _OP_CHUNK:
                 chunks.append((position, []))
@@ -125,7 +137,8 @@ class _McapFile:
         if offsets:
             _mcap_messages(self.data, np.concatenate(offsets), self.channels, decoders)
 
-    def chunk(self, position, indexes, decoders):
+    def chunk(self, position: int, indexes: list[int],
+              decoders: dict[str, TopicDecoder]) -> NDArray[np.int64]:
         """
         Find the wanted messages of the Chunk record at `position`.
 
@@ -138,12 +151,12 @@ class _McapFile:
         name_start = header + _MCAP_CHUNK.size
         compression = bytes(buffer[name_start:name_start + name_length]).decode()
         (records_length,) = struct.unpack_from('<Q', buffer, name_start + name_length)
-        start = name_start + name_length + 8
+        start: int = name_start + name_length + 8
         indexed = {struct.unpack_from('<H', buffer, index + 9)[0]: index for index in indexes}
         nothing = np.empty(0, np.int64)
         if indexed and indexed.keys() <= self.channels.keys():
-            wanted = [index for channel_id, index in indexed.items()
-                      if self.channels[channel_id] in decoders]
+            wanted: list[int] | None = [index for channel_id, index in indexed.items()
+                                        if self.channels[channel_id] in decoders]
             if not wanted:
                 return nothing
         else:
@@ -154,7 +167,8 @@ class _McapFile:
         if len(records) != size:
             raise SessionError(f'{self.path}: MCAP chunk at byte {position} has the wrong size')
         if wanted is None:
-            offsets = np.array([at for at, opcode, _ in self.records(memoryview(records), 0, size)
+            view = memoryview(records)  # type: ignore[arg-type]  # an array is a buffer
+            offsets = np.array([at for at, opcode, _ in self.records(view, 0, size)
                                 if opcode == _OP_MESSAGE], dtype=np.int64)
         else:
             # Message index records: channel id, then (log time, offset) pairs, u64 each.
@@ -169,12 +183,12 @@ class _McapFile:
         return nothing
 
 
-def _read_mcap(path, decoders):
+def _read_mcap(path: Path, decoders: dict[str, TopicDecoder]) -> None:
     """Decode the messages of the topics in `decoders` from an MCAP file."""
     _McapFile(path).read(decoders)
 
 
-def _read_sqlite(path, decoders):
+def _read_sqlite(path: Path, decoders: dict[str, TopicDecoder]) -> None:
     """
     Decode the messages of the topics in `decoders` from a rosbag2 sqlite3 file.
 
@@ -211,10 +225,12 @@ def _read_sqlite(path, decoders):
         connection.close()
 
 
-def _read_with_rosbags(reader, decoders):
+def _read_with_rosbags(reader: Reader, decoders: dict[str, TopicDecoder]) -> None:
     """Decode messages read through rosbags' Reader (any storage, any compression)."""
     connections = [c for c in reader.connections if c.topic in decoders]
-    collected = collections.defaultdict(lambda: ([], []))
+    # topic -> (receive times, messages)
+    collected: collections.defaultdict[str, tuple[list[int], list[bytes]]] = (
+        collections.defaultdict(lambda: ([], [])))
     for connection, log_time, data in reader.messages(connections=connections):
         times, messages = collected[connection.topic]
         times.append(log_time)
@@ -223,7 +239,9 @@ def _read_with_rosbags(reader, decoders):
         decoders[topic].add_list(np.array(times, dtype=np.int64), messages)
 
 
-def _bag_info(path):
+def _bag_info(
+        path: Path,
+) -> tuple[str | None, list[Path], bool, dict[str, tuple[str, int]] | None]:
     """
     Return (storage, files, compressed, topics) from a bag's metadata.yaml.
 
@@ -245,21 +263,22 @@ def _bag_info(path):
         raise SessionError(f'{path}: metadata.yaml is not rosbag2 metadata: {error!r}') from None
 
 
-def bag_topics(path):
+def bag_topics(path: str | os.PathLike[str]) -> dict[str, tuple[str, int]]:
     """Return {topic: (msgtype, message count)} of a bag; raise SessionError if unreadable."""
     path = Path(path)
     try:
         topics = _bag_info(path)[3]
         if topics is None:
             with Reader(path) as reader:
-                topics = {name: (info.msgtype, info.msgcount)
-                          for name, info in reader.topics.items()}
+                topics = {
+                    name: (info.msgtype, info.msgcount)  # type: ignore[misc]  # one type each
+                    for name, info in reader.topics.items()}
     except (ReaderError, OSError, KeyError, ValueError) as error:
         raise SessionError(f'{path}: cannot read the bag: {error}') from None
     return topics
 
 
-def read_topics(path, topics):
+def read_topics(path: str | os.PathLike[str], topics: Iterable[str]) -> dict[str, TopicData]:
     """
     Read `topics` (absolute names) of the bag at `path`; return {topic: TopicData}.
 

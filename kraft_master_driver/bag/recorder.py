@@ -7,6 +7,7 @@ BagRecorder takes the bytes as a subscription with raw=True receives them, and w
 storage file through mcap_writer.py or sqlite3_writer.py, then metadata.yaml (version 9,
 ros_distro jazzy). Message definitions and RIHS01 type hashes are rosbag2's.
 """
+from collections.abc import Iterable, Sequence
 import functools
 import os
 from pathlib import Path
@@ -14,7 +15,7 @@ import re
 import sqlite3
 import sys
 import threading
-from typing import NamedTuple
+from typing import NamedTuple, Self
 
 from kraft_master_driver.bag.common import (
     BAG_VERSION, INFINITE_NS, ROS_DISTRO, SessionError, typestore)
@@ -25,21 +26,23 @@ from rosbags.interfaces import (
 import yaml
 
 STORAGES = ('mcap', 'sqlite3')
-_STORAGE_WRITERS = {'mcap': McapWriter, 'sqlite3': Sqlite3Writer}
+_STORAGE_WRITERS: dict[str, type[McapWriter] | type[Sqlite3Writer]] = {
+    'mcap': McapWriter, 'sqlite3': Sqlite3Writer}
 # How rosbag2 finds the types a .msg file uses.
 _MSG_FIELD_TYPE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
 _PRIMITIVE_TYPES = {'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16',
                     'uint16', 'int32', 'uint32', 'int64', 'uint64', 'string'}
 
 
-def _duration(nanoseconds):
+def _duration(nanoseconds: int) -> QosTime:
     return QosTime(*divmod(int(nanoseconds), 1_000_000_000))
 
 
-def qos_profile(reliability='reliable', durability='volatile', history='unknown', depth=0,
-                deadline_ns=INFINITE_NS, lifespan_ns=INFINITE_NS, liveliness='automatic',
-                liveliness_lease_duration_ns=INFINITE_NS,
-                avoid_ros_namespace_conventions=False):
+def qos_profile(reliability: str = 'reliable', durability: str = 'volatile',
+                history: str = 'unknown', depth: int = 0, deadline_ns: int = INFINITE_NS,
+                lifespan_ns: int = INFINITE_NS, liveliness: str = 'automatic',
+                liveliness_lease_duration_ns: int = INFINITE_NS,
+                avoid_ros_namespace_conventions: bool = False) -> Qos:
     """
     Return an offered QoS profile as ros2 bag stores it, from policy names and nanoseconds.
 
@@ -60,9 +63,9 @@ def qos_profile(reliability='reliable', durability='volatile', history='unknown'
         raise ValueError(f'unknown QoS policy value {error}') from None
 
 
-def _qos_dicts(profiles):
+def _qos_dicts(profiles: Iterable[Qos]) -> list[dict[str, object]]:
     """Return QoS profiles as rosbag2 (metadata version 9) writes them in YAML."""
-    def duration(value):
+    def duration(value: QosTime) -> dict[str, int]:
         return {'sec': value.sec, 'nsec': value.nsec}
     return [{'history': qos.history.name.lower(), 'depth': qos.depth,
              'reliability': qos.reliability.name.lower(),
@@ -73,11 +76,12 @@ def _qos_dicts(profiles):
             for qos in profiles]
 
 
-def _dump_yaml(value):
-    return yaml.safe_dump(value, sort_keys=False, default_flow_style=False).rstrip('\n')
+def _dump_yaml(value: object) -> str:
+    text: str = yaml.safe_dump(value, sort_keys=False, default_flow_style=False)
+    return text.rstrip('\n')
 
 
-def _share_directory(package):
+def _share_directory(package: str) -> Path:
     """Return the share directory of an installed ROS package, as the ament index finds it."""
     prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]
     for prefix in filter(None, prefixes):
@@ -86,7 +90,7 @@ def _share_directory(package):
     raise LookupError(package)
 
 
-def _msg_text(name, seen):
+def _msg_text(name: str, seen: set[str]) -> str:
     """Return the .msg text of `name` (pkg/Type) followed by those of the types it uses."""
     package, _, type_name = name.partition('/')
     text = (_share_directory(package) / 'msg' / f'{type_name.removeprefix("msg/")}.msg'
@@ -100,7 +104,7 @@ def _msg_text(name, seen):
 
 
 @functools.cache
-def message_definition(msgtype):
+def message_definition(msgtype: str) -> tuple[str, str]:
     """
     Return (encoding, text) of a message type's full definition as rosbag2 Jazzy stores it.
 
@@ -117,7 +121,7 @@ def message_definition(msgtype):
 class _Topic(NamedTuple):
     name: str
     msgtype: str
-    offered_qos: list
+    offered_qos: list[Qos]
     qos_yaml: str
     type_hash: str
     encoding: str
@@ -132,14 +136,14 @@ class BagRecorder:
     context manager.
     """
 
-    def __init__(self, path, storage='mcap'):
+    def __init__(self, path: str | os.PathLike[str], storage: str = 'mcap') -> None:
         """Create the bag directory `path` (it must not exist) with storage mcap or sqlite3."""
         if storage not in STORAGES:
             raise ValueError(f'storage must be one of {", ".join(STORAGES)}, got {storage!r}')
         self.path = Path(path)
         self.storage = storage
-        self.counts = {}
-        self._topics = {}  # name -> (topic id, _Topic)
+        self.counts: dict[str, int] = {}
+        self._topics: dict[str, tuple[int, _Topic]] = {}  # name -> (topic id, _Topic)
         self._lock = threading.Lock()
         self._time_span = [INFINITE_NS, 0]
         self.file_name = f'{self.path.name}_0{_STORAGE_WRITERS[storage].extension}'
@@ -148,11 +152,13 @@ class BagRecorder:
         except OSError as error:
             raise SessionError(f'{self.path}: cannot create the bag: {error.strerror}') from None
         try:
-            self._storage = _STORAGE_WRITERS[storage](self.path / self.file_name)
+            self._storage: McapWriter | Sqlite3Writer | None = _STORAGE_WRITERS[storage](
+                self.path / self.file_name)
         except (OSError, sqlite3.Error) as error:
             raise SessionError(f'{self.path}: cannot create the bag: {error}') from None
 
-    def add_topic(self, topic, msgtype, offered_qos=(), type_hash=None):
+    def add_topic(self, topic: str, msgtype: str, offered_qos: Sequence[Qos] = (),
+                  type_hash: str | None = None) -> None:
         """
         Declare `topic` (absolute name) of `msgtype` and the QoS profiles offered on it.
 
@@ -169,10 +175,12 @@ class BagRecorder:
             if topic in self._topics:
                 raise ValueError(f'{topic}: topic added twice')
             self._topics[topic] = (len(self._topics) + 1, entry)
-            self._storage.add_topic(len(self._topics), entry)
+            self._storage.add_topic(  # type: ignore[union-attr]  # closed: AttributeError
+                len(self._topics), entry)
             self.counts[topic] = 0
 
-    def write(self, topic, timestamp_ns, data, publish_time_ns=None):
+    def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview,
+              publish_time_ns: int | None = None) -> None:
         """
         Write one message's raw CDR bytes, received at `timestamp_ns` (ns since the epoch).
 
@@ -192,7 +200,7 @@ class BagRecorder:
             span = self._time_span
             span[0], span[1] = min(span[0], log_time), max(span[1], log_time)
 
-    def metadata(self):
+    def metadata(self) -> dict[str, object]:
         """Return the map rosbag2 writes under rosbag2_bagfile_information for this bag."""
         count = sum(self.counts.values())
         start = self._time_span[0] if count else 0
@@ -220,7 +228,7 @@ class BagRecorder:
             'ros_distro': ROS_DISTRO,
         }
 
-    def close(self):
+    def close(self) -> None:
         """Write the storage's index and metadata, then metadata.yaml; safe to call twice."""
         with self._lock:
             if self._storage is None:
@@ -237,10 +245,10 @@ class BagRecorder:
                 storage.abort()
                 raise SessionError(f'{self.path}: cannot close the bag: {error}') from None
 
-    def __enter__(self):
+    def __enter__(self) -> Self:
         """Return the recorder."""
         return self
 
-    def __exit__(self, *_exc):
+    def __exit__(self, *_exc: object) -> None:
         """Close the bag."""
         self.close()

@@ -1,33 +1,39 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """Synthetic sessions of the driver, for tests and benchmarks: simulate_samples, write_samples."""
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import NamedTuple, TYPE_CHECKING
 
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, DRIVER_TOPICS, JOINT_STATE, POSE_STAMPED, typestore, WRENCH_STAMPED)
-from kraft_master_driver.bag.recorder import qos_profile
+from kraft_master_driver.bag.recorder import BagRecorder, qos_profile
 from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
 from kraft_master_driver.simulation.master.model import actuators_to_joints, Workspace
 from kraft_master_driver.simulation.master.operators import RandomWalkOperator
 import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import MsgType
 
 
 class Samples(NamedTuple):
     """The state of one arm, sample by sample, as the driver would publish it."""
 
-    stamp: np.ndarray  # (N,) int64 ns
-    position: np.ndarray  # (N, 6) rad
-    velocity: np.ndarray  # (N, 6) rad/s
-    effort: np.ndarray  # (N, 6) N*m
-    pots: np.ndarray  # (N, 6) counts
-    wrist: np.ndarray  # (N, 3) m
-    orientation: np.ndarray  # (N, 4) qx qy qz qw
-    wrench: np.ndarray  # (N, 6) N, N*m in the base frame
+    stamp: NDArray[np.int64]  # (N,) int64 ns
+    position: NDArray[np.float64]  # (N, 6) rad
+    velocity: NDArray[np.float64]  # (N, 6) rad/s
+    effort: NDArray[np.float64]  # (N, 6) N*m
+    pots: NDArray[np.float64]  # (N, 6) counts
+    wrist: NDArray[np.float64]  # (N, 3) m
+    orientation: NDArray[np.float64]  # (N, 4) qx qy qz qw
+    wrench: NDArray[np.float64]  # (N, 6) N, N*m in the base frame
 
 
-def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise_counts=1.0,
-                     seed=0, start_ns=1_767_225_600_000_000_000):
+def simulate_samples(count: int, arm: str = 'right', calibration: ArmCalibration | None = None,
+                     rate_hz: float = 1000.0, noise_counts: float = 1.0, seed: int = 0,
+                     start_ns: int = 1_767_225_600_000_000_000) -> Samples:
     """
     Return the Samples of a simulated session of `count` samples.
 
@@ -62,8 +68,10 @@ def simulate_samples(count, arm='right', calibration=None, rate_hz=1000.0, noise
         position, velocity, effort, pots, poses[:, :3, 3], orientation, wrench)))
 
 
-def write_samples(recorder, namespace, samples, joint_names=None, frame_id='kraft_master_base',
-                  diagnostics_every=1000, receive_delay_ns=200_000, diagnostics_topic=None):
+def write_samples(recorder: BagRecorder, namespace: str, samples: Samples,
+                  joint_names: Sequence[str] | None = None,
+                  frame_id: str = 'kraft_master_base', diagnostics_every: int = 1000,
+                  receive_delay_ns: int = 200_000, diagnostics_topic: str | None = None) -> None:
     """
     Write `samples` into `recorder` as the driver's topics under `namespace`.
 
@@ -100,7 +108,7 @@ def write_samples(recorder, namespace, samples, joint_names=None, frame_id='kraf
         x, y, z = samples.wrist[i].tolist()
         qx, qy, qz, qw = samples.orientation[i].tolist()
         fx, fy, fz, mx, my, mz = samples.wrench[i].tolist()
-        messages = (
+        messages: tuple[tuple[str, 'MsgType'], ...] = (
             ('joint_states', types[JOINT_STATE](
                 header=header, name=names, position=samples.position[i],
                 velocity=samples.velocity[i], effort=samples.effort[i])),

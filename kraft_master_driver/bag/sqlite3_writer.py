@@ -1,9 +1,14 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """The .db3 file of a bag, as rosbag2 Jazzy's sqlite3 plugin (schema version 4) writes it."""
+from pathlib import Path
 import sqlite3
+from typing import TYPE_CHECKING
 
 from kraft_master_driver.bag.common import BAG_VERSION, ROS_DISTRO
+
+if TYPE_CHECKING:
+    from kraft_master_driver.bag.recorder import _Topic
 
 # The tables of rosbag2 Jazzy's sqlite3 storage, in its words (sqlite_master keeps them).
 _SQLITE3_SCHEMA = (
@@ -28,7 +33,7 @@ class Sqlite3Writer:
     extension = '.db3'
     batch = 1000  # messages per transaction
 
-    def __init__(self, path):
+    def __init__(self, path: Path) -> None:
         """Create the database `path` (it must not exist) with rosbag2's tables."""
         if path.exists():
             raise FileExistsError(f'{path} exists')
@@ -40,10 +45,10 @@ class Sqlite3Writer:
             self.database.execute(statement)
         self.database.execute('INSERT INTO schema (schema_version, ros_distro) VALUES (?, ?)',
                               (4, ROS_DISTRO))
-        self.types = set()
-        self.pending = []
+        self.types: set[str] = set()
+        self.pending: list[tuple[int, int, bytes]] = []  # (log time, topic id, data)
 
-    def add_topic(self, topic_id, topic):
+    def add_topic(self, topic_id: int, topic: '_Topic') -> None:
         """Insert `topic` (a recorder's _Topic), and its type's definition if new."""
         self.database.execute(
             'INSERT INTO topics(id, name, type, serialization_format, offered_qos_profiles, '
@@ -56,20 +61,20 @@ class Sqlite3Writer:
                 'encoded_message_definition, type_description_hash) VALUES (?, ?, ?, ?)',
                 (topic.msgtype, topic.encoding, topic.definition, topic.type_hash))
 
-    def write(self, topic_id, log_time, _publish_time, data):
+    def write(self, topic_id: int, log_time: int, _publish_time: int, data: bytes) -> None:
         """Add a message (the table has no publish time); commit every `batch` messages."""
         self.pending.append((log_time, topic_id, data))
         if len(self.pending) >= self.batch:
             self._flush()
 
-    def _flush(self):
+    def _flush(self) -> None:
         self.database.executemany(
             'INSERT INTO messages (timestamp, topic_id, data) VALUES (?, ?, ?);', self.pending)
         self.database.execute('COMMIT')
         self.database.execute('BEGIN')
         self.pending = []
 
-    def close(self, metadata):
+    def close(self, metadata: str) -> None:
         """Commit the last messages and the bag's `metadata` (YAML); close the database."""
         self._flush()
         self.database.execute('INSERT INTO metadata (metadata_version, metadata) VALUES (?, ?)',
@@ -77,6 +82,6 @@ class Sqlite3Writer:
         self.database.execute('COMMIT')
         self.database.close()
 
-    def abort(self):
+    def abort(self) -> None:
         """Close the database as it is."""
         self.database.close()

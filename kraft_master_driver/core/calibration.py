@@ -9,12 +9,15 @@ absolute elbow link angle th2 + th3; POT4 reads wrist pitch th5 and POT5 wrist y
 (Table III). Angles are radians in code and degrees in the YAML file, which is a
 ROS 2 parameter file that the node takes unchanged with --params-file.
 """
+from collections.abc import Iterable, Sequence
 import math
 import numbers
-from typing import NamedTuple
+import os
+from typing import Any, NamedTuple, Self
 
 from kraft_master_driver.core.kinematics import ARMS
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 import yaml
 
 POT_COUNT = 6
@@ -41,15 +44,17 @@ class FitResult(NamedTuple):
     """A least-squares calibration and its residuals per pot (radians)."""
 
     calibration: 'ArmCalibration'
-    rms_residual: np.ndarray
-    max_residual: np.ndarray
-    sample_count: np.ndarray
+    rms_residual: NDArray[np.float64]
+    max_residual: NDArray[np.float64]
+    sample_count: NDArray[np.int64]
 
 
 class ArmCalibration:
     """Two-point lines from pot counts to the angle each pot reads, for one arm."""
 
-    def __init__(self, arm, pot_a, pot_b, angle_a, angle_b, source='calibration'):
+    def __init__(self, arm: str, pot_a: Iterable[float], pot_b: Iterable[float],
+                 angle_a: Iterable[float], angle_b: Iterable[float],
+                 source: str = 'calibration') -> None:
         """Build from per-pot arrays (pot order, counts and radians); validate all of it."""
         if arm not in ARMS:
             raise CalibrationError(
@@ -75,7 +80,7 @@ class ArmCalibration:
         self._lines = tuple(zip(self.offset.tolist(), self.slope.tolist()))
 
     @classmethod
-    def nominal(cls, arm):
+    def nominal(cls, arm: str) -> Self:
         """Return the paper's calibration of the right or left unit (Tables IV and V)."""
         if arm not in _NOMINAL_POTS:
             raise CalibrationError(
@@ -84,14 +89,14 @@ class ArmCalibration:
         angle_a, angle_b = (np.radians(a) for a in _NOMINAL_ANGLES_DEG)
         return cls(arm, pot_a, pot_b, angle_a, angle_b, source=f'nominal {arm} arm')
 
-    def pots_to_joints(self, pots):
+    def pots_to_joints(self, pots: ArrayLike) -> NDArray[np.float64]:
         """Return joint angles th1..th6 (rad) from pot counts POT1..POT6, (6,) or (N, 6)."""
         measured = self.offset + self.slope * np.asarray(pots, dtype=float)
-        theta = measured[..., POT_JOINT]
+        theta: NDArray[np.float64] = measured[..., POT_JOINT]
         theta[..., 2] -= theta[..., 1]
         return theta
 
-    def frame_to_joints(self, pots):
+    def frame_to_joints(self, pots: Iterable[float]) -> list[float]:
         """
         Return th1..th6 (rad) of one frame of six pot counts as a list of floats.
 
@@ -102,7 +107,7 @@ class ArmCalibration:
         theta[2] -= theta[1]
         return theta
 
-    def joints_to_frame(self, theta):
+    def joints_to_frame(self, theta: Sequence[float]) -> list[float]:
         """
         Return the pot counts (unrounded) that read th1..th6 (six floats) as a list of floats.
 
@@ -112,7 +117,7 @@ class ArmCalibration:
         measured[2] += theta[1]
         return [(value - offset) / slope for (offset, slope), value in zip(self._lines, measured)]
 
-    def joints_to_pots(self, theta):
+    def joints_to_pots(self, theta: ArrayLike) -> NDArray[np.float64]:
         """Return the pot counts (unrounded floats) that read joint angles th1..th6."""
         theta = np.asarray(theta, dtype=float)
         measured = theta[..., POT_JOINT]
@@ -120,7 +125,8 @@ class ArmCalibration:
         return (measured - self.offset) / self.slope
 
     @classmethod
-    def fit(cls, arm, samples, source='least-squares fit'):
+    def fit(cls, arm: str, samples: Sequence[tuple[ArrayLike, ArrayLike]],
+            source: str = 'least-squares fit') -> FitResult:
         """
         Fit each pot's line by least squares from many (counts, known angle) samples.
 
@@ -151,7 +157,7 @@ class ArmCalibration:
             count[i] = counts.size
         return FitResult(cls(arm, pot_a, pot_b, angle_a, angle_b, source), rms, worst, count)
 
-    def to_parameters(self):
+    def to_parameters(self) -> dict[str, str | dict[str, list[float]]]:
         """Return the calibration as ROS parameter values (degrees in the file)."""
         return {
             'arm': self.arm,
@@ -164,7 +170,7 @@ class ArmCalibration:
         }
 
     @classmethod
-    def from_parameters(cls, arm, calibration, source):
+    def from_parameters(cls, arm: str, calibration: object, source: str) -> Self:
         """Build from the `calibration` parameter mapping of a parameter file or the node."""
         if not isinstance(calibration, dict):
             raise CalibrationError(f'{source}: calibration: expected a mapping with keys '
@@ -176,10 +182,12 @@ class ArmCalibration:
         for key in ('angle_a_deg', 'angle_b_deg'):
             values = _vector(calibration[key], source, key, -360.0, 360.0, 'deg')
             angles.append(np.radians(values))
-        return cls(arm, calibration['pot_a'], calibration['pot_b'], *angles, source=source)
+        angle_a, angle_b = angles
+        return cls(arm, calibration['pot_a'], calibration['pot_b'], angle_a, angle_b,
+                   source=source)
 
     @classmethod
-    def from_yaml(cls, path):
+    def from_yaml(cls, path: str | os.PathLike[str]) -> Self:
         """Load from a ROS 2 parameter file such as config/right_arm.yaml."""
         params = read_parameter_file(path)
         if 'arm' not in params:
@@ -188,7 +196,8 @@ class ArmCalibration:
             raise CalibrationError(f'{path}: calibration: missing key')
         return cls.from_parameters(params['arm'], params['calibration'], str(path))
 
-    def to_yaml(self, path, node_name='/**', header=''):
+    def to_yaml(self, path: str | os.PathLike[str], node_name: str = '/**',
+                header: str = '') -> None:
         """Write a ROS 2 parameter file that from_yaml and the node read back unchanged."""
         text = yaml.safe_dump({node_name: {'ros__parameters': self.to_parameters()}},
                               default_flow_style=None, sort_keys=False)
@@ -196,12 +205,12 @@ class ArmCalibration:
         with open(path, 'w', encoding='utf-8') as stream:
             stream.write(comment + text)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         """Show the arm and the source of the calibration."""
         return f'ArmCalibration(arm={self.arm!r}, source={self.source!r})'
 
 
-def yaml_fault(path, error):
+def yaml_fault(path: str | os.PathLike[str], error: Exception) -> str:
     """Return one line naming the file, the line and the fault of a YAML error (PyYAML: four)."""
     mark = getattr(error, 'problem_mark', None)
     where = f'{path} line {mark.line + 1}' if mark else path
@@ -210,7 +219,7 @@ def yaml_fault(path, error):
     return f'{where}: not valid YAML: {problem}' + (f' ({context})' if context else '')
 
 
-def read_parameter_file(path):
+def read_parameter_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Return the ros__parameters mapping of a one-node ROS 2 parameter file."""
     try:
         with open(path, encoding='utf-8') as stream:
@@ -227,10 +236,12 @@ def read_parameter_file(path):
     (section,) = document.values()
     if not isinstance(section, dict) or not isinstance(section.get('ros__parameters'), dict):
         raise CalibrationError(f'{path}: ros__parameters: missing or not a mapping')
-    return section['ros__parameters']
+    parameters: dict[str, Any] = section['ros__parameters']
+    return parameters
 
 
-def _vector(values, source, key, low, high, unit):
+def _vector(values: object, source: str, key: str, low: float, high: float,
+            unit: str) -> NDArray[np.float64]:
     where = f'{source}: calibration.{key}'
     items = values.tolist() if isinstance(values, np.ndarray) else values
     if isinstance(items, (str, bytes, dict)) or not hasattr(items, '__iter__'):

@@ -30,7 +30,7 @@ class LinkModel(NamedTuple):
     loss: float = 0.0
     loss_burst: float = 0.0
 
-    def checked(self):
+    def checked(self) -> 'LinkModel':
         """Return the model in floats if every field is valid, else raise ValueError."""
         for name, value in self._asdict().items():
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
@@ -45,7 +45,7 @@ class LinkModel(NamedTuple):
                              f'{self.loss / (1.0 - self.loss):.3g} messages')
         return LinkModel(*map(float, self))
 
-    def transitions(self):
+    def transitions(self) -> tuple[float, float]:
         """Return (p_good_to_bad, p_bad_to_good) of the Gilbert chain, per message."""
         if self.loss == 0.0:
             return 0.0, 1.0
@@ -57,14 +57,14 @@ class LinkModel(NamedTuple):
 class DelayStatistics:
     """Counts and the delays of the last `window` released messages (seconds)."""
 
-    def __init__(self, window=10000):
+    def __init__(self, window: int = 10000) -> None:
         """Start with nothing counted."""
         self.received = 0
         self.dropped = 0
         self.released = 0
-        self.delays = collections.deque(maxlen=window)
+        self.delays: collections.deque[float] = collections.deque(maxlen=window)
 
-    def percentiles(self, *quantiles):
+    def percentiles(self, *quantiles: float) -> tuple[float, ...] | None:
         """Return the given quantiles (0..1) of the recent delays, or None when there are none."""
         if not self.delays:
             return None
@@ -72,11 +72,11 @@ class DelayStatistics:
         last = len(ordered) - 1
         return tuple(ordered[min(last, int(round(q * last)))] for q in quantiles)
 
-    def summary(self):
+    def summary(self) -> dict[str, int | str]:
         """Return a dict of the counts and recent delay percentiles (ms), for diagnostics."""
-        values = {'received': self.received, 'relayed': self.released,
-                  'dropped': self.dropped,
-                  'loss': f'{self.dropped / self.received:.4f}' if self.received else '0'}
+        values: dict[str, int | str] = {
+            'received': self.received, 'relayed': self.released, 'dropped': self.dropped,
+            'loss': f'{self.dropped / self.received:.4f}' if self.received else '0'}
         points = self.percentiles(0.0, 0.5, 0.99, 1.0)
         if points:
             for key, value in zip(('min', 'p50', 'p99', 'max'), points):
@@ -87,7 +87,7 @@ class DelayStatistics:
 class DelayLine:
     """Decides each message's fate (lost, or the time it leaves) and records what happened."""
 
-    def __init__(self, model, seed=None):
+    def __init__(self, model: LinkModel, seed: int | None = None) -> None:
         """Use `model` (a LinkModel) with a random generator seeded by `seed`."""
         self.model = model.checked()
         self.rng = random.Random(seed)
@@ -96,7 +96,7 @@ class DelayLine:
         self.last_due = -math.inf
         self.stats = DelayStatistics()
 
-    def admit(self, now):
+    def admit(self, now: float) -> float | None:
         """Take a message arriving at `now` (s); return its release time, or None if lost."""
         self.stats.received += 1
         self.bad = (self.rng.random() >= self.to_good) if self.bad else (
@@ -110,7 +110,7 @@ class DelayLine:
         self.last_due = max(due, self.last_due)
         return self.last_due
 
-    def record(self, released, admitted):
+    def record(self, released: float, admitted: float) -> None:
         """Count one message that arrived at `admitted` and left at `released` (s)."""
         self.stats.released += 1
         self.stats.delays.append(released - admitted)

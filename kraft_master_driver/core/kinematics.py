@@ -9,10 +9,12 @@ forms use the factored K terms of Appendix B, with the OCR errors mended
 (see shared/spec/kinematics.md). Every function takes one joint vector (6,) or a
 batch (N, 6).
 """
+from collections.abc import Iterable, Sequence
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple, overload, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 JOINT_NAMES = (
     'shoulder_yaw', 'shoulder_pitch', 'elbow_pitch', 'wrist_yaw', 'wrist_pitch', 'wrist_roll')
@@ -44,21 +46,26 @@ _LIMITS_DEG = np.array([
 ])
 JOINT_LIMITS = np.radians(_LIMITS_DEG)
 _ELBOW_UPPER_AT_TH2_MAX = math.radians(-85.0)
+# The factored terms' entries: floats for one joint vector, arrays for a batch.
+_Entry = TypeVar('_Entry', float, NDArray[np.float64])
 
 
-def check_arm(arm):
+def check_arm(arm: str) -> str:
     """Return `arm` if it names a known arm, else raise ValueError."""
     if arm not in ARMS:
         raise ValueError(f"unknown arm {arm!r}: expected 'right' or 'left'")
     return arm
 
 
-def _signed_lengths(arm, lengths):
+def _signed_lengths(arm: str,
+                    lengths: LinkLengths | None) -> tuple[float, float, float, float]:
     l1, l2, l3, l4 = NOMINAL_LENGTHS if lengths is None else lengths
     return l1, l2, (l3 if check_arm(arm) == 'right' else -l3), l4
 
 
-def _factored_terms(trig, arm, lengths):
+def _factored_terms(
+        trig: Sequence[_Entry], arm: str, lengths: LinkLengths | None,
+) -> tuple[tuple[_Entry | float, ...], tuple[_Entry | float, ...]]:
     """
     Return the entries of 0T6 and 0J, row by row, from the Appendix B terms.
 
@@ -104,7 +111,7 @@ def _factored_terms(trig, arm, lengths):
     return pose_entries, jacobian_entries
 
 
-def _scalar_trig(theta):
+def _scalar_trig(theta: Iterable[float]) -> tuple[float, ...]:
     th1, th2, th3, th4, th5, th6 = theta
     th23 = th2 + th3
     return (math.cos(th1), math.sin(th1), math.cos(th2), math.sin(th2),
@@ -112,7 +119,7 @@ def _scalar_trig(theta):
             math.cos(th5), math.sin(th5), math.cos(th6), math.sin(th6))
 
 
-def _batch_trig(theta):
+def _batch_trig(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
     # One contiguous row per angle keeps every later elementwise operation contiguous.
     angles = theta.T.copy()
     angles[2] += angles[1]
@@ -120,7 +127,31 @@ def _batch_trig(theta):
     return tuple(x for i in range(6) for x in (cos[i], sin[i]))
 
 
-def _batch(theta, arm, lengths, want_pose, want_jacobian):
+@overload
+def _batch(
+        theta: NDArray[np.float64], arm: str, lengths: LinkLengths | None,
+        want_pose: Literal[True], want_jacobian: Literal[True],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
+
+@overload
+def _batch(
+        theta: NDArray[np.float64], arm: str, lengths: LinkLengths | None,
+        want_pose: Literal[True], want_jacobian: Literal[False],
+) -> tuple[NDArray[np.float64], None]: ...
+
+
+@overload
+def _batch(
+        theta: NDArray[np.float64], arm: str, lengths: LinkLengths | None,
+        want_pose: Literal[False], want_jacobian: Literal[True],
+) -> tuple[None, NDArray[np.float64]]: ...
+
+
+def _batch(
+        theta: NDArray[np.float64], arm: str, lengths: LinkLengths | None, want_pose: bool,
+        want_jacobian: bool,
+) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
     n = theta.shape[0]
     poses = np.empty((n, 16)) if want_pose else None
     jacobians = np.empty((n, 36)) if want_jacobian else None
@@ -136,14 +167,16 @@ def _batch(theta, arm, lengths, want_pose, want_jacobian):
             None if jacobians is None else jacobians.reshape(n, 6, 6))
 
 
-def _as_six_vectors(values, what='joint angles'):
+def _as_six_vectors(values: ArrayLike, what: str = 'joint angles') -> NDArray[np.float64]:
     values = np.asarray(values, dtype=float)
     if values.shape[-1:] != (6,) or values.ndim not in (1, 2):
         raise ValueError(f'{what} must have shape (6,) or (N, 6), got {values.shape}')
     return values
 
 
-def forward_and_jacobian(theta, arm='right', lengths=None):
+def forward_and_jacobian(
+        theta: ArrayLike, arm: str = 'right', lengths: LinkLengths | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """
     Return (0T6, 0J): the wrist pose and the Jacobian, sharing the factored terms.
 
@@ -157,7 +190,9 @@ def forward_and_jacobian(theta, arm='right', lengths=None):
     return np.array(pose_entries).reshape(4, 4), np.array(jacobian_entries).reshape(6, 6)
 
 
-def forward_and_jacobian_entries(theta, arm='right', lengths=None):
+def forward_and_jacobian_entries(
+        theta: Sequence[float], arm: str = 'right', lengths: LinkLengths | None = None,
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """
     Return (0T6, 0J) of one joint vector as 16 and 36 floats, row by row.
 
@@ -167,7 +202,8 @@ def forward_and_jacobian_entries(theta, arm='right', lengths=None):
     return _factored_terms(_scalar_trig(theta), arm, lengths)
 
 
-def forward(theta, arm='right', lengths=None):
+def forward(theta: ArrayLike, arm: str = 'right',
+            lengths: LinkLengths | None = None) -> NDArray[np.float64]:
     """Return 0T6, the homogeneous transform of the wrist frame {6} in {0} (metres)."""
     theta = _as_six_vectors(theta)
     if theta.ndim == 2:
@@ -175,7 +211,8 @@ def forward(theta, arm='right', lengths=None):
     return np.array(_factored_terms(_scalar_trig(theta.tolist()), arm, lengths)[0]).reshape(4, 4)
 
 
-def jacobian(theta, arm='right', lengths=None):
+def jacobian(theta: ArrayLike, arm: str = 'right',
+             lengths: LinkLengths | None = None) -> NDArray[np.float64]:
     """Return 0J, the 6x6 Jacobian of the origin of {6} expressed in {0}."""
     theta = _as_six_vectors(theta)
     if theta.ndim == 2:
@@ -183,7 +220,7 @@ def jacobian(theta, arm='right', lengths=None):
     return np.array(_factored_terms(_scalar_trig(theta.tolist()), arm, lengths)[1]).reshape(6, 6)
 
 
-def dh_transform(alpha, a, d, theta):
+def dh_transform(alpha: float, a: float, d: float, theta: float) -> NDArray[np.float64]:
     """Craig's modified DH link transform (Eq. 1) as a 4x4 array."""
     ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
     return np.array([
@@ -194,7 +231,9 @@ def dh_transform(alpha, a, d, theta):
     ])
 
 
-def dh_table(theta, arm='right', lengths=None):
+def dh_table(
+        theta: Iterable[float], arm: str = 'right', lengths: LinkLengths | None = None,
+) -> tuple[tuple[float, float, float, float], ...]:
     """Rows (alpha_{i-1}, a_{i-1}, d_i, theta_i) of the DH table for one joint vector."""
     l1, l2, l3, l4 = _signed_lengths(arm, lengths)
     th1, th2, th3, th4, th5, th6 = (float(t) for t in theta)
@@ -209,7 +248,8 @@ def dh_table(theta, arm='right', lengths=None):
     )
 
 
-def joint_torques(theta, wrench, arm='right', lengths=None):
+def joint_torques(theta: ArrayLike, wrench: ArrayLike, arm: str = 'right',
+                  lengths: LinkLengths | None = None) -> NDArray[np.float64]:
     """
     Return the six joint torques 0J^T F in N*m (Eq. 15).
 
@@ -217,24 +257,28 @@ def joint_torques(theta, wrench, arm='right', lengths=None):
     Accepts (6,) or batches (N, 6) of both.
     """
     wrench = _as_six_vectors(wrench, 'wrench')
-    return np.einsum('...ji,...j->...i', jacobian(theta, arm, lengths), wrench)
+    torques: NDArray[np.float64] = np.einsum('...ji,...j->...i', jacobian(theta, arm, lengths),
+                                             wrench)
+    return torques
 
 
-def actuator_torques(joint_tau):
+def actuator_torques(joint_tau: ArrayLike) -> NDArray[np.float64]:
     """Map joint torques to actuator torques: the elbow motor drives q3 = th2 + th3."""
     tau = np.array(joint_tau, dtype=float)
     tau[..., 1] = tau[..., 1] - tau[..., 2]
     return tau
 
 
-def joint_torques_from_actuator(actuator_tau):
+def joint_torques_from_actuator(actuator_tau: ArrayLike) -> NDArray[np.float64]:
     """Inverse of actuator_torques: tau2 = tau_q2 + tau_q3, tau3 = tau_q3."""
     tau = np.array(actuator_tau, dtype=float)
     tau[..., 1] = tau[..., 1] + tau[..., 2]
     return tau
 
 
-def joint_limits(theta2=None):
+def joint_limits(
+        theta2: float | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """
     Return (lower, upper) joint limits in radians, each of shape (6,).
 
@@ -248,7 +292,7 @@ def joint_limits(theta2=None):
     return lower, upper
 
 
-def limit_violations(theta, tolerance=1e-9):
+def limit_violations(theta: ArrayLike, tolerance: float = 1e-9) -> list[str]:
     """Return one message per joint of `theta` (6,) outside its Table II range; [] if none."""
     theta = _as_six_vectors(theta)
     if theta.ndim != 1:
@@ -263,7 +307,9 @@ def limit_violations(theta, tolerance=1e-9):
     return messages
 
 
-def rotation_to_euler_zyx(rotation):
+def rotation_to_euler_zyx(
+        rotation: Sequence[Sequence[float]] | NDArray[np.float64],
+) -> tuple[float, float, float]:
     """Z-Y-X Euler angles (RZ, RY, RX) of a rotation matrix (Craig; RY in [-pi/2, pi/2])."""
     r = rotation
     ry = math.atan2(-r[2][0], math.hypot(r[0][0], r[1][0]))
@@ -272,7 +318,9 @@ def rotation_to_euler_zyx(rotation):
     return rz, ry, rx
 
 
-def pose_difference(t_current, t_reference):
+def pose_difference(
+        t_current: ArrayLike, t_reference: ArrayLike,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """
     Section 4 difference of two poses of {A}: return (dp, w), both (3,) in {A}.
 

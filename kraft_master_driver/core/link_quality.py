@@ -13,17 +13,17 @@ class LinkMonitor:
     sender fell behind and skipped them. Without sequence numbers the two look alike.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         """Start an empty window."""
-        self._delays = []
-        self._stamps = []
+        self._delays: list[int] = []
+        self._stamps: list[int] = []
 
-    def add(self, stamp_ns, receipt_ns):
+    def add(self, stamp_ns: int, receipt_ns: int) -> None:
         """Note one message stamped stamp_ns and received at receipt_ns (same clock)."""
         self._delays.append(receipt_ns - stamp_ns)
         self._stamps.append(stamp_ns)
 
-    def summary(self):
+    def summary(self) -> tuple[float, float, float, float] | None:
         """Return (delay median, p99, max in s, lost fraction) of the window and start anew."""
         delays, stamps = sorted(self._delays), sorted(self._stamps)
         self._delays, self._stamps = [], []

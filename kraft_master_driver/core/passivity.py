@@ -29,6 +29,7 @@ master port power into the channel P_m = -F_m . v_m (F_m: wrench on the operator
 v_m: the master's twist); slave port power P_s = F_s . v_s (F_s: the environment's force on
 the slave, v_s: the slave's commanded velocity).
 """
+from collections.abc import Iterable, Sequence
 import math
 import operator
 
@@ -41,8 +42,9 @@ MAX_STEP = 0.05  # s: a longer gap between two steps is integrated as this long
 MASTER_RESERVE_J = 0.002
 
 
-def _dot(a, b):
-    return sum(map(operator.mul, a, b))
+def _dot(a: Iterable[float], b: Iterable[float]) -> float:
+    total: float = sum(map(operator.mul, a, b))
+    return total
 
 
 class PortEnergy:
@@ -53,7 +55,7 @@ class PortEnergy:
     other end, so a lost, late or reordered sample only delays credit.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         """Start with nothing in, out or received."""
         self.energy_in = 0.0
         self.energy_out = 0.0
@@ -61,23 +63,23 @@ class PortEnergy:
         self.remote_in = 0.0
         self.enabled = True
 
-    def credit(self, remote_energy_in):
+    def credit(self, remote_energy_in: float) -> None:
         """Take the other end's energy_in (J); a smaller or non-finite value is ignored."""
         if math.isfinite(remote_energy_in) and remote_energy_in > self.remote_in:
             self.remote_in = remote_energy_in
 
     @property
-    def observed(self):
+    def observed(self) -> float:
         """Return the passivity observer (J): the other end's credit minus what left here."""
         return self.remote_in - self.energy_out
 
-    def _excess(self, power_out, dt):
+    def _excess(self, power_out: float, dt: float) -> float:
         """Return the energy (J) by which a step handing out power_out (W) would overdraw."""
         if not self.enabled or power_out <= 0.0:
             return 0.0
         return max(self.energy_out + power_out * dt - self.remote_in, 0.0)
 
-    def _account(self, power_out, dt, dissipated):
+    def _account(self, power_out: float, dt: float, dissipated: float) -> None:
         """Book one step of power_out (W, negative: power in) after `dissipated` (J)."""
         if power_out > 0.0:
             self.energy_out += power_out * dt
@@ -99,15 +101,15 @@ class MasterPort(PortEnergy):
     Beyond the reserve, the wrench fades out as the deficit grows to MASTER_RESERVE_J.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         """Start idle with an empty reserve; the first step() only sets the clock."""
         super().__init__()
         self.reserve = 0.0
-        self._applied = None  # the wrench applied since the last sample
-        self._last_ns = None
+        self._applied: Sequence[float] | None = None  # the wrench applied since the last sample
+        self._last_ns: int | None = None
         self._period = 0.0
 
-    def moved(self, displacement):
+    def moved(self, displacement: Iterable[float]) -> None:
         """Book the work of the wrench applied over `displacement` (6 floats: m and rad)."""
         if self._applied is not None:
             work_out = _dot(self._applied, displacement)
@@ -123,7 +125,8 @@ class MasterPort(PortEnergy):
                 self._account(work_out + kept, 1.0, 0.0)
         self._applied = None
 
-    def step(self, force, velocity, now_ns):
+    def step(self, force: Sequence[float], velocity: Iterable[float],
+             now_ns: int) -> Sequence[float]:
         """
         Return the wrench (6 floats) to apply in place of `force` until the next sample.
 
@@ -152,12 +155,12 @@ class MasterPort(PortEnergy):
         self._applied = force
         return force
 
-    def scaled(self, factor):
+    def scaled(self, factor: float) -> None:
         """Note that the last wrench was applied scaled by `factor` (0..1)."""
         if self._applied is not None:
             self._applied = [factor * f for f in self._applied]
 
-    def idle(self, now_ns):
+    def idle(self, now_ns: int) -> None:
         """Note a step with no channel force (zero torque): no energy, the clock moves on."""
         self._last_ns = now_ns
         self._applied = None
@@ -172,35 +175,35 @@ class SlavePort(PortEnergy):
     `command`, the position a slave's servo should track. drift = target - command.
     """
 
-    def __init__(self, drift_gain=2.0):
+    def __init__(self, drift_gain: float = 2.0) -> None:
         """drift_gain (1/s): rate at which drift is given back when energy allows."""
         super().__init__()
         self.drift_gain = float(drift_gain)
-        self.command = None
-        self._target = None
+        self.command: list[float] | None = None
+        self._target: list[float] | None = None
 
-    def reset(self, position):
+    def reset(self, position: Iterable[float]) -> None:
         """Start at rest with the target and the command at `position` (3 floats)."""
         self._target = list(position)
         self.command = list(position)
 
     @property
-    def drift(self):
+    def drift(self) -> list[float]:
         """Return target - command (3 floats, m), zeros before reset()."""
-        if self.command is None:
+        if self.command is None or self._target is None:  # both None until reset()
             return [0.0, 0.0, 0.0]
         return [t - c for t, c in zip(self._target, self.command)]
 
-    def step(self, target, force, dt):
+    def step(self, target: Sequence[float], force: Sequence[float], dt: float) -> list[float]:
         """
         Move the command toward `target` passively over `dt` s; return the command.
 
         force: the environment's force on the slave now (3 floats, N); target: where the
         master's (delayed) motion asks the slave to be (3 floats, m).
         """
-        if self.command is None:
+        if self.command is None or self._target is None:  # both None until reset()
             self.reset(target)
-            return self.command
+            return self.command  # type: ignore[return-value]  # reset() has just set it
         if dt <= 0.0:
             return self.command
         dt = min(dt, MAX_STEP)
@@ -219,7 +222,8 @@ class SlavePort(PortEnergy):
         self.command = [c + v * dt for c, v in zip(self.command, velocity)]
         return self.command
 
-    def _passive(self, velocity, force, dt):
+    def _passive(self, velocity: list[float], force: Sequence[float],
+                 dt: float) -> tuple[list[float], float, float]:
         """Return (velocity, power out, dissipated) with the series damper applied if needed."""
         power_out = -_dot(force, velocity)
         excess = self._excess(power_out, dt)

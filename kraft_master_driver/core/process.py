@@ -24,21 +24,21 @@ PR_SET_PDEATHSIG = 1  # from linux/prctl.h
 STOP_SIGNALS = tuple(
     signum for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     if signum != signal.SIGHUP or signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN)
-_remembered = []
+_remembered: list[int] = []
 
 
-def remember_stop_signals():
+def remember_stop_signals() -> None:
     """Until other handlers replace this one, remember each stop signal instead of ending."""
     for signum in STOP_SIGNALS:
         signal.signal(signum, lambda signum, _frame: _remembered.append(signum))
 
 
-def stop_signal_remembered():
+def stop_signal_remembered() -> bool:
     """Return True if a stop signal came while remember_stop_signals() held them."""
     return bool(_remembered)
 
 
-def stop_with_parent(signum=signal.SIGTERM):
+def stop_with_parent(signum: int = signal.SIGTERM) -> bool:
     """
     Have the kernel send `signum` to this process when its parent dies; return True if set.
 

@@ -6,9 +6,10 @@ import math
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.validation import finite_real
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 
-def _outside_dead_band(vector, gain, dead_band):
+def _outside_dead_band(vector: list[float], gain: float, dead_band: float) -> list[float]:
     """Return gain * vector with its length shrunk by dead_band (zero inside the band)."""
     length = math.hypot(*vector)
     if length <= dead_band:
@@ -17,8 +18,10 @@ def _outside_dead_band(vector, gain, dead_band):
     return [factor * x for x in vector]
 
 
-def rate_command(pose, centre, linear_gain, angular_gain, linear_dead_band=0.0,
-                 angular_dead_band=0.0):
+def rate_command(
+        pose: ArrayLike, centre: ArrayLike, linear_gain: float, angular_gain: float,
+        linear_dead_band: float = 0.0, angular_dead_band: float = 0.0,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """
     Return (v, w), each (3,) in {0}: a rate-mode velocity command from the wrist's offset.
 

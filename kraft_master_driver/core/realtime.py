@@ -5,6 +5,7 @@ What a real-time thread asks of Linux: SCHED_FIFO, and memory that is never page
 
 Each function returns None when granted, or why not in a few words (the caller says it once).
 """
+from collections.abc import Callable
 import ctypes
 import ctypes.util
 import errno
@@ -23,7 +24,7 @@ MEMLOCK_FIX = ('allow it with a memlock limit ("@realtime - memlock unlimited" i
                '/etc/security/limits.conf) or CAP_IPC_LOCK')
 
 
-def set_fifo_priority(priority, thread_id=0):
+def set_fifo_priority(priority: int, thread_id: int = 0) -> str | None:
     """Run a thread (0: the calling one) SCHED_FIFO at `priority`; None, or why not."""
     try:
         os.sched_setscheduler(thread_id, os.SCHED_FIFO, os.sched_param(priority))
@@ -32,7 +33,7 @@ def set_fifo_priority(priority, thread_id=0):
     return None
 
 
-def name_this_thread(name):
+def name_this_thread(name: str) -> None:
     """Give the calling thread `name` in ps -L, top and perf too (Linux; its first 15 bytes)."""
     if sys.platform.startswith('linux'):
         ctypes.CDLL(None).prctl(PR_SET_NAME, name.encode()[:15], 0, 0, 0)
@@ -41,13 +42,13 @@ def name_this_thread(name):
 class NamedThread(threading.Thread):
     """A thread whose name ps -L, top and perf show too, as Python's own."""
 
-    def run(self):
+    def run(self) -> None:
         """Name the OS thread, then run the target."""
         name_this_thread(self.name)
         super().run()
 
 
-def lock_memory():
+def lock_memory() -> str | None:
     """Keep every page of this process in RAM once touched (mlockall); None, or why not."""
     libc = ctypes.CDLL(ctypes.util.find_library('c'), use_errno=True)
     if libc.mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT) == 0:
@@ -64,7 +65,8 @@ class Scheduling(NamedTuple):
     memory_lock: str = 'not locked'
 
 
-def make_real_time(priority, executor_thread, warn, parameter, thread):
+def make_real_time(priority: int, executor_thread: int | None, warn: Callable[[str], object],
+                   parameter: str, thread: str) -> Scheduling:
     """
     Run the calling thread SCHED_FIFO at `priority`, `executor_thread` one below; lock memory.
 

@@ -6,14 +6,18 @@ Rotations and short vectors, no ROS: quaternions (x, y, z, w), matrices, rotatio
 The bridge, the simulated arms and the driver's pose share these; every quaternion is ROS's
 order, x, y, z, w.
 """
+from collections.abc import Iterable, Sequence
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 QUATERNION_TOLERANCE = 0.01  # |q| may differ from 1 by this much; more is refused
+# A short vector as callers hold one: floats in a list or a tuple, or a numpy array.
+Vector = Sequence[float] | NDArray[np.float64]
 
 
-def quaternion_to_rotation(quaternion):
+def quaternion_to_rotation(quaternion: Vector) -> NDArray[np.float64]:
     """Return the rotation matrix of a unit quaternion (x, y, z, w)."""
     x, y, z, w = quaternion
     return np.array([
@@ -22,7 +26,7 @@ def quaternion_to_rotation(quaternion):
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def rpy_to_rotation(roll, pitch, yaw):
+def rpy_to_rotation(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
     """Return Rz(yaw) Ry(pitch) Rx(roll), as ROS's roll, pitch, yaw (REP 103)."""
     cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch),
                               math.sin(pitch), math.cos(yaw), math.sin(yaw))
@@ -31,18 +35,18 @@ def rpy_to_rotation(roll, pitch, yaw):
                      [-sp, cp * sr, cp * cr]])
 
 
-def norm(vector):
+def norm(vector: Iterable[float]) -> float:
     """Return the length of a short vector: math.hypot, a few times faster than numpy's norm."""
     return math.hypot(*vector)
 
 
-def cross(a, b):
+def cross(a: Vector, b: Vector) -> NDArray[np.float64]:
     """Return the cross product of two 3-vectors (numpy's takes microseconds to set up)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
                      a[0] * b[1] - a[1] * b[0]])
 
 
-def rotation_parameter(name, values):
+def rotation_parameter(name: str, values: Iterable[float]) -> NDArray[np.float64]:
     """Return the rotation of 3 values (roll, pitch, yaw; rad) or 4 (a quaternion x, y, z, w)."""
     values = [float(v) for v in values]
     if not all(math.isfinite(v) for v in values) or len(values) not in (3, 4):
@@ -55,7 +59,7 @@ def rotation_parameter(name, values):
     return quaternion_to_rotation(np.array(values) / np.linalg.norm(values))
 
 
-def rotation_vector(rotation):
+def rotation_vector(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
     """Return the axis times angle (rad, 3) of a rotation matrix, angle in [0, pi]."""
     cosine = max(-1.0, min(1.0, (np.trace(rotation) - 1.0) / 2.0))
     angle = math.acos(cosine)
@@ -71,23 +75,25 @@ def rotation_vector(rotation):
     return angle * axis / np.linalg.norm(axis)
 
 
-def rotation_from_vector(vector):
+def rotation_from_vector(vector: Vector) -> NDArray[np.float64]:
     """Return the rotation matrix of an axis times angle (rad, 3): Rodrigues' formula."""
     angle = norm(vector)
     if angle < 1e-12:
         return np.eye(3)
     kx, ky, kz = np.asarray(vector) / angle
-    k = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    k: NDArray[np.float64] = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
     return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
 
 
-def clamp_norm(vector, limit):
+def clamp_norm(vector: NDArray[np.float64], limit: float) -> NDArray[np.float64]:
     """Return `vector` shortened to length `limit` if it is longer."""
     length = norm(vector)
     return vector * (limit / length) if length > limit else vector
 
 
-def rotation_to_quaternion(rotation):
+def rotation_to_quaternion(
+        rotation: Sequence[Sequence[float]] | NDArray[np.float64],
+) -> tuple[float, float, float, float]:
     """Return the unit quaternion (x, y, z, w) of a rotation matrix, with w >= 0."""
     r = rotation
     r00, r01, r02 = r[0][0], r[0][1], r[0][2]
@@ -112,7 +118,7 @@ def rotation_to_quaternion(rotation):
     return x / length, y / length, z / length, w / length
 
 
-def rotations_to_quaternions(rotations):
+def rotations_to_quaternions(rotations: NDArray[np.float64]) -> NDArray[np.float64]:
     """Return one unit quaternion row (x, y, z, w; w >= 0) per rotation matrix of (N, 3, 3)."""
     r = rotations
     r00, r11, r22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
@@ -120,7 +126,7 @@ def rotations_to_quaternions(rotations):
     # The same four cases as rotation_to_quaternion, ties broken alike, per row.
     case = np.where(trace > 0.0, 3, np.where((r00 > r11) & (r00 > r22), 0,
                                              np.where(r11 > r22, 1, 2)))
-    q = np.empty((len(r), 4))
+    q: NDArray[np.float64] = np.empty((len(r), 4))
     with np.errstate(invalid='ignore', divide='ignore'):
         for index, rows in enumerate(case == k for k in range(4)):
             m = r[rows]
@@ -136,10 +142,12 @@ def rotations_to_quaternions(rotations):
             q[rows, k] = (m[:, i, k] + m[:, k, i]) / s
             q[rows, 3] = (m[:, k, j] - m[:, j, k]) / s
     q[q[:, 3] < 0.0] *= -1.0
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    lengths: NDArray[np.float64] = np.linalg.norm(q, axis=1, keepdims=True)
+    return q / lengths
 
 
-def integrate_quaternion(quaternion, angular_velocity, dt):
+def integrate_quaternion(quaternion: Vector, angular_velocity: ArrayLike,
+                         dt: float) -> tuple[float, ...]:
     """Turn a unit quaternion (x, y, z, w) by angular_velocity (rad/s, base frame) for dt s."""
     rotation = np.asarray(angular_velocity, dtype=float) * dt
     angle = math.sqrt(float(rotation @ rotation))

@@ -1,18 +1,20 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """Checks of settings, no ROS: each returns the value, or raises ValueError naming it."""
+from collections.abc import Iterable, Sequence
 import math
 import numbers
 
 import numpy as np
 
 
-def interval_text(lower, upper, lower_open):
+def interval_text(lower: float, upper: float, lower_open: bool) -> str:
     """Return the interval as text: [0, 5], (0, inf)."""
     return f'{"(" if lower_open else "["}{lower:g}, {upper:g}{")" if upper == math.inf else "]"}'
 
 
-def finite_real(name, value, lower=0.0, upper=math.inf, lower_open=False):
+def finite_real(name: str, value: object, lower: float = 0.0, upper: float = math.inf,
+                lower_open: bool = False) -> float:
     """Return value as a float if it is a finite real number in range, else raise ValueError."""
     if type(value) is not float:
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -25,7 +27,8 @@ def finite_real(name, value, lower=0.0, upper=math.inf, lower_open=False):
     return value
 
 
-def finite_reals(name, values, length, lower_open=False):
+def finite_reals(name: str, values: Iterable[object], length: int,
+                 lower_open: bool = False) -> tuple[float, ...]:
     """Return a tuple of `length` finite non-negative floats (positive if lower_open)."""
     if isinstance(values, (str, bytes)):
         raise ValueError(f'{name} must be {length} numbers, got {values!r}')
@@ -39,14 +42,14 @@ def finite_reals(name, values, length, lower_open=False):
                  for i, v in enumerate(values))
 
 
-def flag(name, value):
+def flag(name: str, value: object) -> bool:
     """Return value as a bool if it is one (numpy's too), else raise ValueError."""
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f'{name} must be True or False, got {value!r}')
     return bool(value)
 
 
-def choice(name, choices, value):
+def choice(name: str, choices: Sequence[str], value: str) -> str:
     """Return value if it is one of `choices`, else raise ValueError."""
     if value not in choices:
         raise ValueError(f'{name} must be one of {", ".join(choices)}, got {value!r}')

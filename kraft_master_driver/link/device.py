@@ -8,12 +8,13 @@ never raise out of cycle(): an OSError/SerialException, or too many consecutive 
 mark the link down and close the port (after an attempt to write zero torques); later cycles
 reopen it with exponential backoff. Zero torques are written before every close.
 """
+from collections.abc import Callable, Iterable
 import math
 import os
 import select
 import threading
 import time
-from typing import NamedTuple
+from typing import NamedTuple, Self
 
 from kraft_master_driver.link.protocol import (
     AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, INT16_MAX, PotFrame,
@@ -56,16 +57,18 @@ class CycleResult(NamedTuple):
     frame: PotFrame
     receive_ns: int  # time.time_ns() when the reply completed
     round_trip_s: float  # from just before the write to the reply's last byte
-    commanded_nm: tuple  # the five torques actually sent (after clamping), N*m
+    commanded_nm: tuple[float, ...]  # the five torques actually sent (after clamping), N*m
 
 
 class KmcDevice:
     """The host side of the KMC 9100 link over pyserial."""
 
-    def __init__(self, port, baudrate=1_000_000, codec='kraft-default', reply_timeout=0.01,
-                 torque_scale=DEFAULT_TORQUE_SCALE, torque_limit=DEFAULT_TORQUE_LIMIT,
-                 low_latency=False, reconnect_min=0.05, reconnect_max=2.0,
-                 timeouts_before_reconnect=25):
+    def __init__(self, port: str, baudrate: float = 1_000_000, codec: str = 'kraft-default',
+                 reply_timeout: float = 0.01,
+                 torque_scale: Iterable[float] = DEFAULT_TORQUE_SCALE,
+                 torque_limit: Iterable[float] = DEFAULT_TORQUE_LIMIT,
+                 low_latency: bool = False, reconnect_min: float = 0.05,
+                 reconnect_max: float = 2.0, timeouts_before_reconnect: int = 25) -> None:
         """
         Configure the link; nothing is opened until open().
 
@@ -86,10 +89,10 @@ class KmcDevice:
         self.torque_scale = _axis_values(
             'torque_scale', torque_scale, lambda v: math.isfinite(v) and v > 0,
             'finite positive counts per N*m')
-        self.torque_limit = _axis_values(
+        limits = _axis_values(
             'torque_limit', torque_limit, lambda v: 1 <= v <= INT16_MAX and v == int(v),
             f'integer counts in 1..{INT16_MAX}')
-        self.torque_limit = tuple(int(v) for v in self.torque_limit)
+        self.torque_limit = tuple(int(v) for v in limits)
         self.low_latency = bool(low_latency)
         self.reconnect_min = _positive('reconnect_min', reconnect_min)
         self.reconnect_max = _positive('reconnect_max', reconnect_max)
@@ -104,9 +107,10 @@ class KmcDevice:
         self.last_error = ''
         self._counters = dict.fromkeys(COUNTER_NAMES, 0)
         self._decoder = self.codec.reply_decoder()
-        self._serial = None
-        self._io = None
-        self._in_flight = None  # (sequence, write time ns, counts) of the command sent last
+        self._serial: serial.SerialBase | None = None
+        self._io: _PyserialIo | _DescriptorIo | None = None
+        # (sequence, write time ns, counts) of the command sent last
+        self._in_flight: tuple[int, int, tuple[int, ...]] | None = None
         self._lock = threading.Lock()
         self._opened = False
         self._ever_up = False
@@ -116,37 +120,37 @@ class KmcDevice:
         self._next_attempt = 0.0
 
     @property
-    def stats(self):
+    def stats(self) -> dict[str, int]:
         """Counters of the link (see COUNTER_NAMES) and the decoder's error kinds."""
         return {**self._counters, **self._decoder.errors}
 
-    def wire_limited_rate(self):
+    def wire_limited_rate(self) -> float:
         """Return the cycles/s the wire allows at the configured baud (8N1)."""
         return 1.0 / self.codec.wire_cycle_time(self.baudrate)
 
-    def open(self):  # noqa: A003 - the name pyserial and file objects use
+    def open(self) -> bool:  # noqa: A003 - the name pyserial and file objects use
         """Open the port; return link_up. A failure leaves the link down, retried by cycle()."""
         with self._lock:
             self._opened = True
             self._backoff = self.reconnect_min
             return self._try_open()
 
-    def close(self):
+    def close(self) -> None:
         """Write zero torques if the port is open, then close it. Safe to call repeatedly."""
         with self._lock:
             self._opened = False
             self._close_port()
 
-    def __enter__(self):
+    def __enter__(self) -> Self:
         """Open the device (a failed open is retried by cycle())."""
         self.open()
         return self
 
-    def __exit__(self, *exc_info):
+    def __exit__(self, *exc_info: object) -> None:
         """Zero the torques and close."""
         self.close()
 
-    def command_counts(self, torques_nm):
+    def command_counts(self, torques_nm: Iterable[float]) -> tuple[tuple[int, ...], bool, bool]:
         """
         Return (counts, clamped, nonfinite) for five torques in N*m (actuator axes 1..5).
 
@@ -176,7 +180,7 @@ class KmcDevice:
             counts.append(count)
         return tuple(counts), clamped, nonfinite
 
-    def cycle(self, torques_nm):
+    def cycle(self, torques_nm: Iterable[float]) -> CycleResult | None:
         """
         Write the torques (N*m, axes 1..5) and read the matching pot frame: send + receive.
 
@@ -186,7 +190,7 @@ class KmcDevice:
         """
         return self.receive() if self.send(torques_nm) else None
 
-    def send(self, torques_nm):
+    def send(self, torques_nm: Iterable[float]) -> bool:
         """
         Write one torque command (N*m, axes 1..5); return True if it went out.
 
@@ -206,6 +210,7 @@ class KmcDevice:
             counters['nonfinite_commands'] += nonfinite
             sequence = self._next_sequence()
             command = self.codec.encode_command(sequence, counts)
+            assert self._io is not None  # the link is up, so the port is open
             try:
                 start_ns = time.perf_counter_ns()
                 self._io.write(command)
@@ -216,7 +221,7 @@ class KmcDevice:
             self._in_flight = (sequence, start_ns, counts)
             return True
 
-    def receive(self):
+    def receive(self) -> CycleResult | None:
         """
         Wait for the reply to the command sent last; return its CycleResult.
 
@@ -250,8 +255,9 @@ class KmcDevice:
             commanded_nm = tuple(count / scale for count, scale in zip(counts, self.torque_scale))
             return CycleResult(frame, receive_ns, round_trip_s, commanded_nm)
 
-    def _read_reply(self, sequence, deadline_ns):
+    def _read_reply(self, sequence: int, deadline_ns: int) -> PotFrame | None:
         """Read until the reply with this sequence arrives (return it) or the deadline (None)."""
+        assert self._io is not None  # receive() reads only while the link is up
         read = self._io.read
         decoder = self._decoder
         reply_size = self.codec.reply_size
@@ -270,26 +276,26 @@ class KmcDevice:
             if time.perf_counter_ns() >= deadline_ns:
                 return None
 
-    def _count_status(self, status):
+    def _count_status(self, status: int) -> None:
         """Count what a reply's status byte reports, stale replies included."""
         if status & STATUS_CORRUPT_COMMAND:
             self._counters['device_corrupt_commands'] += 1
         if status & STATUS_COMMAND_TIMEOUT:
             self._counters['device_command_timeouts'] += 1
 
-    def _next_sequence(self):
+    def _next_sequence(self) -> int:
         """Advance and return the command sequence number."""
         self._sequence = (self._sequence + 1) % SEQUENCE_MODULO
         return self._sequence
 
-    def _reconnect_due(self):
+    def _reconnect_due(self) -> bool:
         """Reopen the port if the backoff allows; return link_up."""
         if time.monotonic() < self._next_attempt:
             return False
         self._backoff = min(self._backoff * 2, self.reconnect_max)
         return self._try_open()
 
-    def _try_open(self):
+    def _try_open(self) -> bool:
         """Open the port once; on failure schedule the next attempt. Return link_up."""
         self._close_port()
         try:
@@ -317,7 +323,7 @@ class KmcDevice:
             self._set_low_latency(port)
         return True
 
-    def _set_low_latency(self, port):
+    def _set_low_latency(self, port: serial.SerialBase) -> None:
         """Ask the driver for ASYNC_LOW_LATENCY; a failure is recorded, not raised."""
         try:
             port.set_low_latency_mode(True)
@@ -325,14 +331,14 @@ class KmcDevice:
             self._counters['low_latency_failures'] += 1
             self.last_error = f'{self.port}: warning: low latency mode not set: {exc}'
 
-    def _link_fault(self, reason):
+    def _link_fault(self, reason: str) -> None:
         """Mark the link down, close the port, schedule a reopen."""
         self._counters['link_faults'] += 1
         self.last_error = reason
         self._close_port()
         self._next_attempt = time.monotonic() + self._backoff
 
-    def _close_port(self):
+    def _close_port(self) -> None:
         """Write zero torques (best effort) and close the port if it is open."""
         port, self._serial, self._io = self._serial, None, None
         self._in_flight = None
@@ -353,16 +359,17 @@ class KmcDevice:
 class _PyserialIo:
     """A URL port (socket://, loop://): pyserial's read and write."""
 
-    def __init__(self, port):
+    def __init__(self, port: serial.SerialBase) -> None:
         self._port = port
 
-    def write(self, data):
+    def write(self, data: bytes) -> None:
         self._port.write(data)
 
-    def read(self, size, deadline_ns):
+    def read(self, size: int, deadline_ns: int) -> bytes:
         """Return up to the bytes waiting (at least size if they come within READ_SLICE_S)."""
         port = self._port
-        return port.read(max(size, port.in_waiting))
+        data: bytes = port.read(max(size, port.in_waiting))
+        return data
 
 
 class _DescriptorIo:
@@ -372,14 +379,14 @@ class _DescriptorIo:
     pyserial's own calls cost two extra select()s and its Timeout bookkeeping per cycle.
     """
 
-    def __init__(self, port):
+    def __init__(self, port: serial.Serial) -> None:
         self._fd = port.fileno()
         self._readable = select.poll()
         self._readable.register(self._fd, select.POLLIN)
         self._writable = select.poll()
         self._writable.register(self._fd, select.POLLOUT)
 
-    def write(self, data):
+    def write(self, data: bytes) -> None:
         """Write all of data; SerialTimeoutException after WRITE_TIMEOUT_S of a full buffer."""
         deadline = time.monotonic() + WRITE_TIMEOUT_S
         while data:
@@ -390,7 +397,7 @@ class _DescriptorIo:
                 if wait_ms <= 0 or not self._writable.poll(wait_ms):
                     raise serial.SerialTimeoutException('Write timeout') from None
 
-    def read(self, _size, deadline_ns):
+    def read(self, _size: int, deadline_ns: int) -> bytes:
         """Return all bytes waiting, or b'' if none came before deadline_ns (perf_counter_ns)."""
         wait_ms = max(0.0, (deadline_ns - time.perf_counter_ns()) / 1e6)
         if not self._readable.poll(wait_ms):
@@ -405,7 +412,7 @@ class _DescriptorIo:
         return data
 
 
-def _open_failure(exc):
+def _open_failure(exc: Exception) -> str:
     """Say in a few words why a port did not open (pyserial repeats the path and errno)."""
     text = str(exc)
     if 'lock' in text.lower():
@@ -414,7 +421,7 @@ def _open_failure(exc):
     return os.strerror(errno) if isinstance(errno, int) else text
 
 
-def _positive(name, value):
+def _positive(name: str, value: float) -> float:
     """Return value if it is a finite positive number, else raise ValueError naming it."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
             math.isfinite(value) and value > 0):
@@ -422,7 +429,8 @@ def _positive(name, value):
     return value
 
 
-def _axis_values(name, values, valid, expected):
+def _axis_values(name: str, values: Iterable[float], valid: Callable[[float], bool],
+                 expected: str) -> tuple[float, ...]:
     """Return values as a tuple of AXIS_COUNT floats satisfying valid(); ValueError naming name."""
     try:
         result = tuple(float(value) for value in values)

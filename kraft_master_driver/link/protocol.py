@@ -18,8 +18,9 @@ the decoders count each kind of error and resynchronise.
 """
 import abc
 import binascii
+from collections.abc import Callable, Sequence
 import struct
-from typing import NamedTuple
+from typing import Generic, NamedTuple, TypeVar
 
 from kraft_master_driver.core.calibration import POT_COUNT, POT_MAX
 
@@ -51,7 +52,7 @@ class PotFrame(NamedTuple):
     """A decoded reply: the echoed sequence number, pots POT1..POT6 (counts), status bits."""
 
     sequence: int
-    pots: tuple
+    pots: tuple[int, ...]
     status: int
 
 
@@ -59,10 +60,14 @@ class TorqueCommand(NamedTuple):
     """A decoded command: sequence number and five torque counts (axes 1..5)."""
 
     sequence: int
-    counts: tuple
+    counts: tuple[int, ...]
 
 
-class FrameDecoder:
+# What a FrameDecoder yields: PotFrame on the host side, TorqueCommand on the device side.
+Frame = TypeVar('Frame', PotFrame, TorqueCommand)
+
+
+class FrameDecoder(Generic[Frame]):
     """
     Incremental decoder of fixed-length frames that start with a header byte sequence.
 
@@ -73,7 +78,8 @@ class FrameDecoder:
     pending (fewer than frame_size bytes kept for the next feed: the buffer is bounded).
     """
 
-    def __init__(self, header, frame_size, parse):
+    def __init__(self, header: bytes, frame_size: int,
+                 parse: Callable[[bytes | bytearray, int], Frame | str]) -> None:
         """
         Decode frames of frame_size bytes starting with header (bytes).
 
@@ -85,22 +91,22 @@ class FrameDecoder:
             raise ValueError('header must be non-empty and shorter than frame_size')
         self._header = bytes(header)
         self._size = frame_size
-        self._parse = parse
+        self._parse: Callable[[bytes | bytearray, int], Frame | str] = parse
         self._buffer = bytearray()
         self.frames_decoded = 0
         self.errors = dict.fromkeys(ERROR_KINDS, 0)
 
     @property
-    def frame_size(self):
+    def frame_size(self) -> int:
         """Return the length of one frame in bytes."""
         return self._size
 
     @property
-    def pending(self):
+    def pending(self) -> int:
         """Return the number of bytes held for the next feed (always less than frame_size)."""
         return len(self._buffer)
 
-    def feed(self, data):
+    def feed(self, data: bytes | bytearray) -> list[Frame]:
         """Append received bytes (bytes or bytearray); return the list of frames they complete."""
         size = self._size
         buffer = self._buffer
@@ -109,12 +115,12 @@ class FrameDecoder:
             frame = self._parse(data, 0)
             if frame is not BAD_CRC and frame is not OUT_OF_RANGE:
                 self.frames_decoded += 1
-                return [frame]
+                return [frame]  # type: ignore[list-item]  # `is` cleared both error strings
         buffer += data
         header = self._header
         errors = self.errors
         end = len(buffer)
-        frames = []
+        frames: list[Frame] = []
         pos = 0
         while True:
             start = buffer.find(header, pos)
@@ -138,13 +144,13 @@ class FrameDecoder:
                 errors[OUT_OF_RANGE] += 1
                 pos = start + size
             else:
-                frames.append(frame)
+                frames.append(frame)  # type: ignore[arg-type]  # `is` cleared both error strings
                 pos = start + size
         del buffer[:pos]
         self.frames_decoded += len(frames)
         return frames
 
-    def _header_prefix_length(self, pos):
+    def _header_prefix_length(self, pos: int) -> int:
         """Return the length of the longest tail of buffer[pos:] that could begin a header."""
         buffer = self._buffer
         for length in range(min(len(self._header) - 1, len(buffer) - pos), 0, -1):
@@ -152,7 +158,7 @@ class FrameDecoder:
                 return length
         return 0
 
-    def reset(self):
+    def reset(self) -> None:
         """Drop the pending bytes (a partial frame counts as truncated); keep the counters."""
         if self._buffer.startswith(self._header):
             self.errors[TRUNCATED] += 1
@@ -168,22 +174,22 @@ class Codec(abc.ABC):
     reply_size = 0
 
     @abc.abstractmethod
-    def encode_command(self, sequence, counts):
+    def encode_command(self, sequence: int, counts: Sequence[int]) -> bytes:
         """Return the command frame for sequence (0..255) and five int16 torque counts."""
 
     @abc.abstractmethod
-    def encode_reply(self, sequence, pots, status):
+    def encode_reply(self, sequence: int, pots: Sequence[int], status: int) -> bytes:
         """Return the reply frame for sequence (0..255), six pot counts and status bits."""
 
     @abc.abstractmethod
-    def reply_decoder(self):
+    def reply_decoder(self) -> FrameDecoder[PotFrame]:
         """Return a new FrameDecoder for the host side, yielding PotFrame."""
 
     @abc.abstractmethod
-    def command_decoder(self):
+    def command_decoder(self) -> FrameDecoder[TorqueCommand]:
         """Return a new FrameDecoder for the device side, yielding TorqueCommand."""
 
-    def wire_cycle_time(self, baud):
+    def wire_cycle_time(self, baud: float) -> float:
         """Return the seconds one command plus one reply take on the wire at 8N1."""
         if not baud > 0:
             raise ValueError(f'baud must be positive, got {baud!r}')
@@ -204,7 +210,7 @@ class KraftDefaultCodec(Codec):
     command_size = _command.size
     reply_size = _reply.size
 
-    def encode_command(self, sequence, counts):
+    def encode_command(self, sequence: int, counts: Sequence[int]) -> bytes:
         """Return the 15-byte command frame; ValueError if a field is out of range."""
         try:
             body = self._command_body.pack(self.COMMAND_HEADER, sequence, *counts)
@@ -213,7 +219,7 @@ class KraftDefaultCodec(Codec):
                              f'counts {counts!r} (5 ints in -32768..32767): {exc}') from None
         return body + self._crc.pack(binascii.crc_hqx(body, CRC_INIT))
 
-    def encode_reply(self, sequence, pots, status):
+    def encode_reply(self, sequence: int, pots: Sequence[int], status: int) -> bytes:
         """Return the 18-byte reply frame; ValueError if a field is out of range."""
         try:
             body = self._reply_body.pack(self.REPLY_HEADER, sequence, *pots, status)
@@ -222,15 +228,15 @@ class KraftDefaultCodec(Codec):
                              f'(6 ints in 0..65535), status {status!r} (0..255): {exc}') from None
         return body + self._crc.pack(binascii.crc_hqx(body, CRC_INIT))
 
-    def reply_decoder(self):
+    def reply_decoder(self) -> FrameDecoder[PotFrame]:
         """Return a new FrameDecoder yielding PotFrame."""
         return FrameDecoder(self.REPLY_HEADER, self.reply_size, self._parse_reply)
 
-    def command_decoder(self):
+    def command_decoder(self) -> FrameDecoder[TorqueCommand]:
         """Return a new FrameDecoder yielding TorqueCommand."""
         return FrameDecoder(self.COMMAND_HEADER, self.command_size, self._parse_command)
 
-    def _parse_reply(self, buffer, offset):
+    def _parse_reply(self, buffer: bytes | bytearray, offset: int) -> PotFrame | str:
         """Return the PotFrame at offset, BAD_CRC or OUT_OF_RANGE."""
         fields = self._reply.unpack_from(buffer, offset)
         body_end = offset + self.reply_size - self._crc.size
@@ -241,7 +247,7 @@ class KraftDefaultCodec(Codec):
             return OUT_OF_RANGE
         return PotFrame(fields[1], pots, fields[-2])
 
-    def _parse_command(self, buffer, offset):
+    def _parse_command(self, buffer: bytes | bytearray, offset: int) -> TorqueCommand | str:
         """Return the TorqueCommand at offset or BAD_CRC."""
         fields = self._command.unpack_from(buffer, offset)
         body_end = offset + self.command_size - self._crc.size
@@ -250,10 +256,10 @@ class KraftDefaultCodec(Codec):
         return TorqueCommand(fields[1], fields[2:2 + AXIS_COUNT])
 
 
-CODECS = {KraftDefaultCodec.name: KraftDefaultCodec}
+CODECS: dict[str, type[Codec]] = {KraftDefaultCodec.name: KraftDefaultCodec}
 
 
-def get_codec(name):
+def get_codec(name: str) -> Codec:
     """Return a new instance of the codec registered under name; ValueError if unknown."""
     try:
         return CODECS[name]()

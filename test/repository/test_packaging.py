@@ -72,6 +72,12 @@ def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path)
     assert output.startswith(f'usage: {name}'), output + errors
 
 
+def test_the_colcon_install_ships_py_typed(install_prefix):
+    """PEP 561: a type checker uses the installed package's type hints."""
+    markers = list(install_prefix.glob(f'lib/python3*/site-packages/{PACKAGE}/py.typed'))
+    assert markers, f'{install_prefix}: no {PACKAGE}/py.typed installed (setup.py package_data)'
+
+
 def readme_python_blocks():
     """Return the ```python blocks of the README and of the pages in doc/."""
     pages = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]

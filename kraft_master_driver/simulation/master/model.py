@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 from kraft_master_driver.core import kinematics
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 JOINT_COUNT = 6
 MAX_SUBSTEP = 0.5e-3  # s
@@ -48,7 +49,7 @@ def joints_to_actuators(theta):
     return q
 
 
-def actuators_to_joints(q):
+def actuators_to_joints(q: ArrayLike) -> NDArray[np.float64]:
     """Return joint angles th1..th6 of actuator coordinates q (inverse of joints_to_actuators)."""
     theta = np.array(q, dtype=float)
     theta[..., 2] -= theta[..., 1]
@@ -65,7 +66,7 @@ def elbow_upper_slope():
 class Workspace:
     """Table II joint ranges shrunk by OPERATOR_MARGIN at each end: where the hand goes."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         """Compute the ranges; the elbow's upper bound is given at th2 = 0."""
         lower, upper = kinematics.joint_limits(0.0)
         margin = OPERATOR_MARGIN * (upper - lower)

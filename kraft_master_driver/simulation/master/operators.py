@@ -10,7 +10,8 @@ The device follows the hand when no torque resists, and deflects when one is app
 import math
 
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.simulation.master.model import JOINT_COUNT, joints_to_actuators
+from kraft_master_driver.simulation.master.model import (
+    JOINT_COUNT, joints_to_actuators, Workspace)
 import numpy as np
 
 OPERATORS = ('hold', 'sweep', 'random_walk', 'push')
@@ -59,7 +60,7 @@ class RandomWalkOperator:
 
     STEP_FRACTION = 0.25  # standard deviation of one step, as a fraction of each joint's range
 
-    def __init__(self, workspace, period, rng):
+    def __init__(self, workspace: Workspace, period: float, rng: np.random.Generator) -> None:
         """Start at the workspace's home; segments last 0.5..1.5 `period` s; draw from `rng`."""
         self._workspace = workspace
         self._step_sigma = self.STEP_FRACTION * (workspace.upper - workspace.lower)
@@ -70,7 +71,7 @@ class RandomWalkOperator:
         self._t_start = 0.0
         self._t_end = 0.0
 
-    def target(self, t):
+    def target(self, t: float) -> list[float]:
         """Return the actuator coordinates (6 floats) the hand pulls toward at time t (s)."""
         while t >= self._t_end:
             self._start = self._end
