@@ -57,6 +57,7 @@ def test_every_console_script_is_installed_in_the_venv(name):
     assert installed.get(name) == console_scripts()[name], 'stale install: run make venv'
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('name', sorted(console_scripts()))
 def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path):
     process = subprocess.Popen(
@@ -79,6 +80,7 @@ def readme_python_blocks():
         r'^```python\n(.*?)^```', page.read_text(), re.MULTILINE | re.DOTALL)]
 
 
+@pytest.mark.process
 def test_the_readme_python_snippets_run_from_any_directory(tmp_path):
     """Each snippet runs in the venv's Python, outside the repository (a device via the sim)."""
     blocks = readme_python_blocks()
@@ -309,11 +311,13 @@ def set_up(directory):
         (directory / '.venv' / f'.installed-{stamp}').touch()
 
 
+@pytest.mark.process
 def test_the_first_make_demo_installs_what_running_needs_only(checkout):
     assert planned_stages(checkout, 'demo') == {'venv', 'run', 'package'}
     assert planned_stages(checkout, 'test') == {'venv', 'run', 'dev', 'package'}
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('changed, target, stages', [
     (None, 'demo', set()), (None, 'test', set()),
     ('requirements.txt', 'demo', {'run'}), ('requirements.txt', 'test', {'run', 'dev'}),
@@ -326,6 +330,7 @@ def test_later_runs_install_only_what_a_changed_file_asks_for(
     assert planned_stages(checkout, *(['-W', changed] if changed else []), target) == stages
 
 
+@pytest.mark.process
 def test_without_python_make_says_what_to_install(checkout):
     result = make(checkout, 'demo', 'PYTHON=no-such-python3')
     assert result.returncode != 0
@@ -342,6 +347,7 @@ def pip_installs(directory, *args):
     return [command.strip() for command in commands]
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('target', ['demo', 'test'])
 def test_make_installs_the_pinned_versions(checkout, target):
     installs = pip_installs(checkout, target)
@@ -349,6 +355,7 @@ def test_make_installs_the_pinned_versions(checkout, target):
     assert all(line.endswith('--constraint constraints.txt') for line in installs), installs
 
 
+@pytest.mark.process
 def test_make_test_latest_installs_the_newest_into_a_venv_of_its_own(checkout):
     installs = pip_installs(checkout, 'test-latest')
     assert installs
@@ -356,6 +363,7 @@ def test_make_test_latest_installs_the_newest_into_a_venv_of_its_own(checkout):
     assert not any('--constraint' in line for line in installs), installs
 
 
+@pytest.mark.process
 def test_make_lock_pins_the_version_of_everything_the_requirements_install(checkout):
     venv = pathlib.Path(sys.prefix)
     stamps = [f'--old-file={venv}/.installed-{stamp}' for stamp in ('requirements-dev', 'package')]

@@ -498,6 +498,7 @@ def read_port_line(process, timeout=30.0):
     raise AssertionError('the simulator CLI printed no port line')
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
     with running_cli('--operator', 'sweep', '--noise', '1',
@@ -514,6 +515,7 @@ def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
         assert not os.path.exists(os.path.dirname(path))
 
 
+@pytest.mark.process
 def test_cli_serves_tcp_to_the_driver_device_code():
     with running_cli('--tcp') as process:
         url = read_port_line(process)
@@ -525,6 +527,7 @@ def test_cli_serves_tcp_to_the_driver_device_code():
         assert process.wait(timeout=20) == 0
 
 
+@pytest.mark.process
 def test_a_killed_simulator_leaves_a_dangling_link():
     with running_cli() as process:
         path = read_port_line(process)
@@ -550,6 +553,7 @@ def test_priority_runs_the_serving_thread_sched_fifo():
             host.close()
 
 
+@pytest.mark.process
 def test_cli_runs_its_main_thread_one_below_the_serving_thread():
     with running_cli('--priority', '20') as process:
         host = Host(read_port_line(process))
@@ -567,6 +571,7 @@ def test_cli_runs_its_main_thread_one_below_the_serving_thread():
         assert process.wait(timeout=20) == 0
 
 
+@pytest.mark.process
 def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
     without_sys_nice = ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice']
     with running_cli('--priority', '20', wrapper=without_sys_nice) as process:
@@ -580,6 +585,7 @@ def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
         assert 'warning: SCHED_FIFO 20 refused' in process.stderr.read()
 
 
+@pytest.mark.process
 def test_cli_refuses_an_unreadable_calibration():
     result = subprocess.run(
         [sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
