@@ -279,6 +279,7 @@ def test_watchdog_zeroes_the_torque_and_reports_it(rig):
     assert (frame.status & STATUS_COMMAND_TIMEOUT) == 0 or simulator.stats['timeouts'] > timeouts
 
 
+@pytest.mark.slow
 def test_sweep_moves_each_joint_inside_its_limits(rig):
     simulator, host = rig(operator='sweep', operator_period=0.3)
     calibration = ArmCalibration.nominal('right')
@@ -341,6 +342,7 @@ def test_corrupted_bytes_fail_the_host_crc(rig):
     assert sequences == sorted(set(sequences))
 
 
+@pytest.mark.slow
 def test_stall_consumes_commands_without_answering(rig):
     simulator, host = rig()
     assert host.exchange() is not None
@@ -370,6 +372,7 @@ def test_unplug_fails_the_host_and_replug_serves_the_same_path(rig):
         again.close()
 
 
+@pytest.mark.slow
 def test_tcp_unplug_closes_the_connection_and_replug_serves_the_same_url(rig):
     simulator, host = rig(transport='tcp')
     url = simulator.port
@@ -389,6 +392,7 @@ def test_tcp_unplug_closes_the_connection_and_replug_serves_the_same_url(rig):
         again.close()
 
 
+@pytest.mark.slow
 def test_tcp_serves_one_host_at_a_time(rig):
     simulator, host = rig(transport='tcp')
     assert host.exchange() is not None
@@ -608,6 +612,7 @@ def test_push_operator_moves_the_wrist_straight_down_and_back():
     assert wrist(1.0)[2] == pytest.approx(top[2] - PushOperator.DEPTH / 2, abs=0.005)
 
 
+@pytest.mark.slow
 def test_push_operator_takes_hold_at_the_hosts_first_command():
     with SimulatedKraftMaster(operator='push') as simulator:
         time.sleep(1.5)  # three quarters of a stroke, had the push started with the simulator
