@@ -289,8 +289,16 @@ def checkout(tmp_path):
 
 
 def make(directory, *args):
-    """Run make in `directory` as a user's shell would (not as a sub-make of `make test`)."""
-    env = {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
+    """
+    Run make in `directory` as a user's shell would, not as a sub-make of `make test`.
+
+    A make passes the variables of its command line to what it runs, in MAKEFLAGS and the
+    environment (`make test-latest`: CONSTRAINTS= and VENV=.venv-latest); none reach this one.
+    """
+    flags = os.environ.get('MAKEFLAGS', '').split()
+    given = flags[flags.index('--') + 1:] if '--' in flags else []
+    calling_make = {'MAKEFLAGS', 'MAKELEVEL', 'MFLAGS', *(word.split('=')[0] for word in given)}
+    env = {k: v for k, v in os.environ.items() if k not in calling_make}
     return subprocess.run(['make', *args], cwd=directory, env=env, capture_output=True,
                           text=True, timeout=60)
 
