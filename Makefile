@@ -121,9 +121,10 @@ bench: $(DEVELOPMENT)
 	$(VPY) benchmarks/arm_sim.py
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless
-# `make soak DURATION=600` says otherwise.
+# `make soak DURATION=600` says otherwise. test/ on the path: it runs the fault suite's harness.
 soak: $(DEVELOPMENT)
-	$(VPY) benchmarks/soak.py --duration $(if $(filter command line,$(origin DURATION)),$(DURATION),3600)
+	PYTHONPATH=test $(VPY) scripts/soak.py \
+		--duration $(if $(filter command line,$(origin DURATION)),$(DURATION),3600)
 
 clean:
 	rm -rf $(VENV) .venv-latest build install log .pytest_cache .hypothesis *.egg-info

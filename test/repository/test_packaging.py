@@ -263,7 +263,7 @@ def first_party(path):
 def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
     closure = requirements_closure(REPO / 'requirements-dev.txt')
     missing = {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
-               for directory in ('test', 'benchmarks', 'doc')
+               for directory in ('test', 'benchmarks', 'scripts', 'doc')
                for path in sorted((REPO / directory).rglob('*.py'))
                for group in import_groups(path, first_party(path))
                if not group <= NOT_ON_PYPI
