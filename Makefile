@@ -110,15 +110,16 @@ doc-figures: $(DEVELOPMENT)
 	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
 	$(VPY) doc/figures/arm_contact.py doc/figures/arm_contact.png
 
-# Figures, not tests: each prints a table (loop and link also write JSON).
+# Figures, not tests: each prints a table (loop and link also write JSON). Each runs as a module
+# from here, which imports this checkout's package.
 bench: $(DEVELOPMENT)
-	$(VPY) benchmarks/kinematics.py
-	$(VPY) benchmarks/link.py
-	$(VPY) benchmarks/loop.py --repeat 3
-	$(VPY) benchmarks/messages.py
-	$(VPY) benchmarks/report.py
-	$(VPY) benchmarks/bridge.py
-	$(VPY) benchmarks/arm_sim.py
+	$(VPY) -m benchmarks.kinematics
+	$(VPY) -m benchmarks.link
+	$(VPY) -m benchmarks.loop --repeat 3
+	$(VPY) -m benchmarks.messages
+	$(VPY) -m benchmarks.report
+	$(VPY) -m benchmarks.bridge
+	$(VPY) -m benchmarks.arm_sim
 
 # A long run at 1 kHz with random faults, not part of `make test`: one hour unless
 # `make soak DURATION=600` says otherwise. test/ on the path: it runs the fault suite's harness.

@@ -19,10 +19,9 @@ import subprocess
 import sys
 import tempfile
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / 'test')]
+from harness import PACKAGE, remote_session as session
 
-from harness import PACKAGE, remote_session as session  # noqa: E402, I100
+REPO = pathlib.Path(__file__).resolve().parents[1]
 
 ROUND_TRIPS_MS = (0, 20, 50, 100, 250, 500)
 LOSSES = (0.0, 0.01, 0.1)

@@ -249,14 +249,16 @@ def test_every_import_but_ros_is_in_setup_py_install_requires():
 
 def first_party(path):
     """
-    Return the top-level modules of this repository a test, benchmark or doc script can import.
+    Return the top-level modules of this repository a test, benchmark or script can import.
 
-    Those on the tests' path (pytest.ini; the benchmarks add it too): test/'s modules and
+    The packages at the root (benchmarks/, run as modules from there); those on the tests'
+    path (pytest.ini; PYTHONPATH for the scripts that use the harness): test/'s modules and
     helper packages (harness/); and those beside the file, whose directory pytest (for a test)
     or Python (for a script) puts first on the path.
     """
     tests = REPO / 'test'
-    return ({init.parent.name for init in tests.glob('*/__init__.py')} |
+    return ({init.parent.name for init in [*REPO.glob('*/__init__.py'),
+                                           *tests.glob('*/__init__.py')]} |
             {module.stem for module in [*tests.glob('*.py'), *path.parent.glob('*.py')]})
 
 
