@@ -23,13 +23,12 @@ import pathlib
 import platform
 import random
 import signal
-import subprocess
 import sys
 import tempfile
 import time
 
-from harness import faults, PACKAGE
-from harness.driver import installed_env
+from harness import faults
+from harness.driver import colcon_build, installed_env
 import numpy as np
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -39,16 +38,6 @@ RSS_PERIOD_S = 10.0
 WARM_UP_S = 60.0  # RSS samples before this are left out of the slope
 RECORD_S = 120.0  # commands the simulator keeps: enough for the longest fault
 RECOVERY_LIMIT_S = 20.0  # a fault not recovered from within this is a failed recovery
-
-
-def build(workdir):
-    """Build and install the package with colcon into `workdir`; return the install prefix."""
-    colcon = pathlib.Path(sys.executable).parent / 'colcon'
-    subprocess.run([str(colcon), '--log-base', str(workdir / 'log'), 'build', '--base-paths',
-                    str(REPO), '--build-base', str(workdir / 'build'), '--install-base',
-                    str(workdir / 'install')], cwd=workdir, check=True,
-                   stdout=subprocess.DEVNULL)
-    return workdir / 'install' / PACKAGE
 
 
 def rss_kib(pid):
@@ -222,7 +211,7 @@ def main():
 
     with tempfile.TemporaryDirectory(prefix='kraft_soak_') as workdir:
         print('building the package with colcon ...', flush=True)
-        prefix = build(pathlib.Path(workdir))
+        prefix = colcon_build(pathlib.Path(workdir))
         session = faults.FaultSession(prefix, faults.SEVERAL_SOURCES, loop_rate_hz=RATE_HZ,
                                       record=int(RECORD_S * RATE_HZ))
         try:
