@@ -41,19 +41,16 @@ import sys
 import threading
 import time
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / 'test')]
-
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
-from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
-from kraft_master_driver.simulation.arms.panda import Gains, HOME, PandaArm, Table  # noqa: E402
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-import rclpy  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from std_msgs.msg import Bool, String  # noqa: E402
-from std_srvs.srv import SetBool  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from kraft_master_driver.simulation.arms.panda import Gains, HOME, PandaArm, Table
+import mujoco
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Bool, String
+from std_srvs.srv import SetBool
 
 BIN = pathlib.Path(sys.executable).parent
 AMPLITUDE = 0.05  # m

@@ -37,16 +37,14 @@ import sys
 import tempfile
 import time
 
+from benchmarks.machine import cpu_times, steal_fraction
+from kraft_master_driver.core import kinematics, rotations
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.nodes import cdr
+from kraft_master_driver.simulation.master.model import Workspace
 import numpy as np
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from kraft_master_driver.core import kinematics, rotations  # noqa: E402, I100
-from kraft_master_driver.core.calibration import ArmCalibration  # noqa: E402
-from kraft_master_driver.nodes import cdr  # noqa: E402
-from kraft_master_driver.simulation.master.model import Workspace  # noqa: E402
-from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
 STEP_M = 1e-6  # the master's travel per pose while moving: 1 mm/s at 1 kHz
 MASTER_FRAME, ARM_FRAME, FT_FRAME = 'kraft_master_base', 'base_link', 'ft_sensor'
@@ -391,9 +389,9 @@ def run(args, workdir):
     bridge = subprocess.Popen(bridge_command(args.set, args.profile), env=env, stdout=log,
                               stderr=subprocess.STDOUT)
     outs = {role: str(workdir / role) for role in ('master', 'arm')}
-    peers = {role: subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
-                                     '--capacity', str(capacity), '--rate', str(args.rate)],
-                                    env=env)
+    peers = {role: subprocess.Popen([sys.executable, '-m', 'benchmarks.bridge', '--role', role,
+                                     '--out', out, '--capacity', str(capacity),
+                                     '--rate', str(args.rate)], env=env)
              for role, out in outs.items()}
     processes = [(peers['master'], signal.SIGINT), (peers['arm'], signal.SIGINT),
                  (bridge, signal.SIGTERM)]

@@ -15,28 +15,14 @@ import argparse
 import json
 import pathlib
 import platform
-import subprocess
 import sys
 import tempfile
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / 'test')]
-
-from harness import PACKAGE, remote_session as session  # noqa: E402, I100
+from harness import remote_session as session
+from harness.driver import colcon_build
 
 ROUND_TRIPS_MS = (0, 20, 50, 100, 250, 500)
 LOSSES = (0.0, 0.01, 0.1)
-
-
-def build(workdir):
-    """Build and install the package with colcon into `workdir`; return the install prefix."""
-    colcon = pathlib.Path(sys.executable).parent / 'colcon'
-    subprocess.run([str(colcon), '--log-base', str(workdir / 'log'), 'build', '--base-paths',
-                    str(REPO), '--build-base', str(workdir / 'build'), '--install-base',
-                    str(workdir / 'install')], cwd=workdir, check=True,
-                   stdout=subprocess.DEVNULL)
-    return workdir / 'install' / PACKAGE
-
 
 COLUMNS = (('past mm', 'past_mm', '{:.0f}'), ('rtt ms', 'round_trip_ms', '{:.0f}'),
            ('loss %', 'loss_pct', '{:.0f}'),
@@ -69,7 +55,7 @@ def main(argv=None):
     modes = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.passivity]
     rows = []
     with tempfile.TemporaryDirectory(prefix='kmd_delay_') as workdir:
-        prefix = build(pathlib.Path(workdir))
+        prefix = colcon_build(pathlib.Path(workdir))
         print(' | '.join(title for title, _, _ in COLUMNS), flush=True)
         arm_parameters = [text.split(':=', 1) for text in args.arm_set]
         for seed, (past, round_trip, loss, passivity) in enumerate(

@@ -20,19 +20,15 @@ import pathlib
 import random
 import sys
 
-import numpy as np
-
-REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO)]
-
-from kraft_master_driver.core import kinematics  # noqa: E402, I100
-from kraft_master_driver.core.force_reflection import ForceReflection  # noqa: E402
-from kraft_master_driver.core.passivity import MasterPort, SlavePort  # noqa: E402
-from kraft_master_driver.core.velocity_filter import VelocityFilter  # noqa: E402
-from kraft_master_driver.simulation.arms.point_mass import (  # noqa: E402
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_reflection import ForceReflection
+from kraft_master_driver.core.passivity import MasterPort, SlavePort
+from kraft_master_driver.core.velocity_filter import VelocityFilter
+from kraft_master_driver.simulation.arms.point_mass import (
     SlaveArm, SlaveLimits, Wall)
-from kraft_master_driver.simulation.master.model import (  # noqa: E402
+from kraft_master_driver.simulation.master.model import (
     DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
+import numpy as np
 
 ARM = 'right'
 LENGTHS = kinematics.LinkLengths(*kinematics.NOMINAL_LENGTHS)

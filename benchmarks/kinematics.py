@@ -12,13 +12,10 @@ import argparse
 import os
 import platform
 import statistics
-import sys
 import time
 
+from kraft_master_driver.core import kinematics
 import numpy as np
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from kraft_master_driver.core import kinematics  # noqa: E402, I100
 
 SPEEDUP_TARGET = 20.0
 BATCH_TARGET = 2e6

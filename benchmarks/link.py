@@ -28,12 +28,10 @@ import sys
 import time
 import tty
 
+from benchmarks.machine import cpu_times, steal_fraction
+from kraft_master_driver.link.device import KmcDevice
+from kraft_master_driver.link.protocol import get_codec
 import numpy as np
-
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from kraft_master_driver.link.device import KmcDevice  # noqa: E402, I100
-from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
-from machine import cpu_times, steal_fraction  # noqa: E402, I100
 
 RATE_TARGET = 2000.0  # cycles/s flat out
 P99_TARGET_US = 1000.0
@@ -56,7 +54,7 @@ class SimulatorProcess:
         bare: run this file's bare far end (run_bare_far_end) in place of the simulator.
         """
         if bare:
-            self._arguments = [sys.executable, __file__, '--bare-far-end', '--baud',
+            self._arguments = [sys.executable, '-m', 'benchmarks.link', '--bare-far-end', '--baud',
                                str(baud or 0), '--sim-priority', str(priority)]
         else:
             self._arguments = [sys.executable, '-m',

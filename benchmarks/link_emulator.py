@@ -99,7 +99,7 @@ def run_row(name, seconds, base_domain, delay=None):
             ['-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
              '-p', f'slave_domain_id:={slave}', '-p', f'to_slave.delay:={delay}',
              '-p', "to_slave.topics:=['pose:pose:geometry_msgs/msg/PoseStamped']"], master)
-    source = python_process([__file__, '--source', str(seconds)], master)
+    source = python_process(['-m', 'benchmarks.link_emulator', '--source', str(seconds)], master)
     latencies = receive(slave if emulator else master, source, emulator)
     row = {'row': name, 'sent': int(seconds * RATE_HZ), 'received': len(latencies)}
     for key, q in (('p50', 50), ('p99', 99), ('max', 100)):

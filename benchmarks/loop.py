@@ -56,14 +56,12 @@ import sys
 import tempfile
 import time
 
+from benchmarks.machine import bare_loop, bare_pty, bare_work, cpu_times, steal_fraction
+from benchmarks.sched_trace import Recording, SLOW_GAP_MS, summarize
+from kraft_master_driver.link.protocol import get_codec
 import numpy as np
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from kraft_master_driver.link.protocol import get_codec  # noqa: E402, I100
-from machine import bare_loop, bare_pty, bare_work, cpu_times, steal_fraction  # noqa: E402, I100
-from sched_trace import Recording, SLOW_GAP_MS, summarize  # noqa: E402, I100
 
 DEFAULT_LOOP_PRIORITY = 50  # the driver's loop_priority default
 DDS_PROFILE = REPO / 'config' / 'fastdds_realtime.xml'
@@ -313,9 +311,9 @@ def run(rate_hz, duration, baud, domain_id, workdir, driver_parameters=(), sim_p
     # at once, and the measured window would begin before the peers run.
     for ready in (subscriber_out + '.ready', publisher_out + '.ready'):
         pathlib.Path(ready).unlink(missing_ok=True)
-    peers = [subprocess.Popen([sys.executable, __file__, '--role', role, '--out', out,
-                               '--duration', str(duration), '--publisher-priority',
-                               str(publisher_priority)], env=role_env)
+    peers = [subprocess.Popen([sys.executable, '-m', 'benchmarks.loop', '--role', role,
+                               '--out', out, '--duration', str(duration),
+                               '--publisher-priority', str(publisher_priority)], env=role_env)
              for role, out, role_env in (('subscriber', subscriber_out, env),
                                          ('publisher', publisher_out, realtime_env))]
     processes = (*peers, driver, sim)

@@ -55,7 +55,7 @@ def bare_loop(rate_hz, seconds, priority):
     priority: SCHED_FIFO priority of the child (0, or refused by the OS: normal scheduling).
     """
     output = subprocess.run(
-        [sys.executable, __file__, str(rate_hz), str(seconds), str(priority)],
+        [sys.executable, '-m', 'benchmarks.machine', str(rate_hz), str(seconds), str(priority)],
         check=True, capture_output=True, text=True).stdout
     return json.loads(output)
 
@@ -125,7 +125,8 @@ def pace_nothing(rate_hz, seconds, priority):
 def bare_pty(rate_hz, seconds, priority, device_priority, command_size, reply_size):
     """Run pace_pty_exchange() in a child process; return its figures."""
     output = subprocess.run(
-        [sys.executable, __file__, str(rate_hz), str(seconds), str(priority), '--pty',
+        [sys.executable, '-m', 'benchmarks.machine', str(rate_hz), str(seconds), str(priority),
+         '--pty',
          str(device_priority), str(command_size), str(reply_size)],
         check=True, capture_output=True, text=True).stdout
     return json.loads(output)
@@ -134,8 +135,8 @@ def bare_pty(rate_hz, seconds, priority, device_priority, command_size, reply_si
 def bare_work(rate_hz, seconds, priority, work_us):
     """Run pace_work() in a child process; return its figures."""
     output = subprocess.run(
-        [sys.executable, __file__, str(rate_hz), str(seconds), str(priority), '--work-us',
-         str(work_us)], check=True, capture_output=True, text=True).stdout
+        [sys.executable, '-m', 'benchmarks.machine', str(rate_hz), str(seconds), str(priority),
+         '--work-us', str(work_us)], check=True, capture_output=True, text=True).stdout
     return json.loads(output)
 
 
@@ -147,7 +148,6 @@ def pace_work(rate_hz, seconds, priority, work_us):
     cycles/s, the calls per cycle, and the wall and CPU time of each cycle's work (median,
     p99, max, ms); the wall time also counts the time the thread waited for a CPU.
     """
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
     from kraft_master_driver.core.kinematics import forward_and_jacobian_entries
 
     scheduler = _set_fifo(priority)

@@ -14,20 +14,15 @@ Prints median and p90 in microseconds, and the CPU share the hypervisor stole me
 import argparse
 import gc
 import os
-import pathlib
 import subprocess
 import sys
 import time
 
-import numpy as np
-
-REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from kraft_master_driver.nodes import cdr  # noqa: E402, I100
+from benchmarks.machine import cpu_times, steal_fraction
+from kraft_master_driver.nodes import cdr
 # Loaded for the garbage collection figure.
-import kraft_master_driver.nodes.driver  # noqa: E402, F401
-from machine import cpu_times, steal_fraction  # noqa: E402, I100
+import kraft_master_driver.nodes.driver  # noqa: F401
+import numpy as np
 
 JOINT_NAMES = [f'kraft_joint{i}' for i in range(1, 7)]
 FRAME = 'kraft_master_base'
@@ -96,7 +91,8 @@ def publish_figures(node, count):
     import rclpy
     from sensor_msgs.msg import JointState
     publisher = node.create_publisher(JointState, 'joint_states', 10)
-    subscriber = subprocess.Popen([sys.executable, __file__, '--role', 'subscriber'])
+    subscriber = subprocess.Popen(
+        [sys.executable, '-m', 'benchmarks.messages', '--role', 'subscriber'])
     try:
         while publisher.get_subscription_count() == 0:
             rclpy.spin_once(node, timeout_sec=0.01)

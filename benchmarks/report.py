@@ -15,21 +15,17 @@ comparison. Wall and CPU seconds are printed: on a shared machine wall time also
 what other processes take.
 """
 import argparse
-import os
 from pathlib import Path
 import shutil
-import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from kraft_master_driver.bag.common import typestore  # noqa: E402
-from kraft_master_driver.bag.recorder import BagRecorder, STORAGES  # noqa: E402
-from kraft_master_driver.bag.samples import simulate_samples, write_samples  # noqa: E402
-from kraft_master_driver.core.calibration import ArmCalibration  # noqa: E402
-from kraft_master_driver.tools import (  # noqa: E402
-    report, report_data, report_plots, report_tables)
-from rosbags.rosbag2 import Reader  # noqa: E402
+from kraft_master_driver.bag.common import typestore
+from kraft_master_driver.bag.recorder import BagRecorder, STORAGES
+from kraft_master_driver.bag.samples import simulate_samples, write_samples
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.tools import report, report_data, report_plots, report_tables
+from rosbags.rosbag2 import Reader
 
 TARGET_S = 30.0
 BATCH = 100_000  # samples simulated and written at a time

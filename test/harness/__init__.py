@@ -6,7 +6,7 @@ Helpers of the tests (pytest puts test/ on the path): `from harness.driver impor
 driver: the installed driver and slave as processes, a client node, DDS domains. netns: two
 hosts as network namespaces. remote_session: one teleoperation session across them, with
 remote_probe.py and remote_recorder.py the scripts run inside a host. faults: the fault
-suite's session and injections (benchmarks/soak.py uses them too), with wrench_source.py the
+suite's session and injections (scripts/soak.py uses them too), with wrench_source.py the
 wrench publisher it runs as a process. type_hashes: the message type hashes rosidl generated.
 dds_shm: Fast DDS's shared-memory files, and ending DDS processes so that they remove theirs.
 session_bags: synthetic recorded sessions, the bags the report's tests read. joints: joint

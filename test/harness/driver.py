@@ -4,13 +4,15 @@
 import collections
 import itertools
 import os
+import pathlib
 import random
 import signal
 import subprocess
+import sys
 import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from harness import dds_shm, PACKAGE
+from harness import dds_shm, PACKAGE, REPO
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -58,6 +60,16 @@ def installed_env(prefix, domain_id):
     # A node that dies of a signal (SIGSEGV, SIGABRT) prints every thread's stack first.
     env['PYTHONFAULTHANDLER'] = '1'
     return env
+
+
+def colcon_build(workdir):
+    """Build and install the package with colcon into `workdir`; return the install prefix."""
+    colcon = pathlib.Path(sys.executable).parent / 'colcon'
+    subprocess.run([str(colcon), '--log-base', str(workdir / 'log'), 'build', '--base-paths',
+                    str(REPO), '--build-base', str(workdir / 'build'), '--install-base',
+                    str(workdir / 'install')], cwd=workdir, check=True,
+                   stdout=subprocess.DEVNULL)
+    return workdir / 'install' / PACKAGE
 
 
 def executable(prefix, name):

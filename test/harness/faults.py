@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-The fault suite's harness (integration/faults/), shared with benchmarks/soak.py.
+The fault suite's harness (integration/faults/), shared with scripts/soak.py.
 
 FaultSession: the installed kraft_master_node runs on a SimulatedKraftMaster in this process,
 watched by a client node here and fed by a wrench source in a separate process

@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-Every test under integration/ starts real processes: `-m "not integration"` leaves it out.
+Every test under integration/ starts real processes: each is marked integration and process.
 
 The fixture `start_demo` runs the demo as a user does (harness/demo.py).
 """
@@ -13,10 +13,11 @@ HERE = pathlib.Path(__file__).parent
 
 
 def pytest_collection_modifyitems(config, items):
-    """Mark each test collected from this directory as an integration test."""
+    """Mark each test collected from this directory: integration, and process."""
     for item in items:
         if HERE in pathlib.Path(item.fspath).parents:
             item.add_marker(pytest.mark.integration)
+            item.add_marker(pytest.mark.process)
 
 
 @pytest.fixture

@@ -13,9 +13,9 @@ pytestmark = pytest.mark.integration
 
 def test_the_bridge_benchmark_runs_and_prints_its_figures():
     run = subprocess.run(
-        [sys.executable, str(REPO / 'benchmarks' / 'bridge.py'), '--duration', '1',
+        [sys.executable, '-m', 'benchmarks.bridge', '--duration', '1',
          '--domain-id', str(next_domain_id())],
-        capture_output=True, text=True, timeout=4 * WAIT_S)
+        cwd=REPO, capture_output=True, text=True, timeout=4 * WAIT_S)
     assert run.returncode == 0, run.stdout + run.stderr
     lines = run.stdout.splitlines()
     for row in ('pose -> servo_cp', 'measured_cf -> wrench', 'at enable', 'at clutch release'):

@@ -16,7 +16,9 @@ import pytest
 
 pytestmark = pytest.mark.integration
 
-CTL = pathlib.Path(sys.executable).parent / 'kraft_master_ctl'
+# The venv these tests run in: .venv/ under `make test`, .venv-latest/ under `make test-latest`.
+BIN = pathlib.Path(sys.executable).parent
+CTL = BIN / 'kraft_master_ctl'
 NAMESPACE = '/right'
 WRENCH = (0.0, 0.0, -5.0, 0.0, 0.0, 0.0)
 
@@ -34,6 +36,15 @@ def ctl(domain_id, *args, cwd):
                           stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)
 
 
+def in_this_venv(command):
+    """Return a command of the page as arguments, with its `.venv/bin/` the tests' venv."""
+    arguments = shlex.split(command)
+    venv_bin = '.venv/bin/'
+    if arguments[0].startswith(venv_bin):
+        arguments[0] = str(BIN / arguments[0][len(venv_bin):])
+    return arguments
+
+
 def test_the_readme_venv_commands_work_as_typed():
     """The block of doc/getting-started.md on the venv's commands, line by line, from the repo."""
     section = (REPO / 'doc' / 'getting-started.md').read_text().partition(
@@ -46,14 +57,14 @@ def test_the_readme_venv_commands_work_as_typed():
             command = line.partition('  #')[0].strip()
             if command.endswith('&'):
                 driver = subprocess.Popen(
-                    shlex.split(command[:-1]), cwd=REPO, env=env, stdin=subprocess.DEVNULL,
+                    in_this_venv(command[:-1]), cwd=REPO, env=env, stdin=subprocess.DEVNULL,
                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             elif command == 'kill %1':
                 driver.terminate()
                 output, _ = driver.communicate(timeout=60)
                 assert driver.returncode == 0, output
             else:
-                result = subprocess.run(shlex.split(command), cwd=REPO, env=env,
+                result = subprocess.run(in_this_venv(command), cwd=REPO, env=env,
                                         stdin=subprocess.DEVNULL, capture_output=True,
                                         text=True, timeout=120)
                 assert result.returncode == 0, f'{command}\n{result.stdout}{result.stderr}'

@@ -7,7 +7,7 @@ from ament_flake8.main import main_with_errors
 from harness import REPO
 import pytest
 
-CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'launch', 'doc', 'setup.py')
+CHECKED = ('kraft_master_driver', 'test', 'benchmarks', 'scripts', 'launch', 'doc', 'setup.py')
 
 
 @pytest.mark.flake8

@@ -30,6 +30,7 @@ print(json.dumps({'modules': modules, 'ros_after': ros_after, 'ros': ros}))
 """
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('subpackage', ROS_FREE)
 def test_ros_free_subpackages_import_no_rclpy(subpackage):
     result = subprocess.run(

@@ -57,6 +57,7 @@ def test_every_console_script_is_installed_in_the_venv(name):
     assert installed.get(name) == console_scripts()[name], 'stale install: run make venv'
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('name', sorted(console_scripts()))
 def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path):
     process = subprocess.Popen(
@@ -72,6 +73,7 @@ def test_every_console_script_answers_help_from_outside_the_repo(name, tmp_path)
     assert output.startswith(f'usage: {name}'), output + errors
 
 
+@pytest.mark.process
 def test_the_colcon_install_ships_py_typed(install_prefix):
     """PEP 561: a type checker uses the installed package's type hints."""
     markers = list(install_prefix.glob(f'lib/python3*/site-packages/{PACKAGE}/py.typed'))
@@ -85,6 +87,7 @@ def readme_python_blocks():
         r'^```python\n(.*?)^```', page.read_text(), re.MULTILINE | re.DOTALL)]
 
 
+@pytest.mark.process
 def test_the_readme_python_snippets_run_from_any_directory(tmp_path):
     """Each snippet runs in the venv's Python, outside the repository (a device via the sim)."""
     blocks = readme_python_blocks()
@@ -253,21 +256,23 @@ def test_every_import_but_ros_is_in_setup_py_install_requires():
 
 def first_party(path):
     """
-    Return the top-level modules of this repository a test, benchmark or doc script can import.
+    Return the top-level modules of this repository a test, benchmark or script can import.
 
-    Those on the tests' path (pytest.ini; the benchmarks add it too): test/'s modules and
+    The packages at the root (benchmarks/, run as modules from there); those on the tests'
+    path (pytest.ini; PYTHONPATH for the scripts that use the harness): test/'s modules and
     helper packages (harness/); and those beside the file, whose directory pytest (for a test)
     or Python (for a script) puts first on the path.
     """
     tests = REPO / 'test'
-    return ({init.parent.name for init in tests.glob('*/__init__.py')} |
+    return ({init.parent.name for init in [*REPO.glob('*/__init__.py'),
+                                           *tests.glob('*/__init__.py')]} |
             {module.stem for module in [*tests.glob('*.py'), *path.parent.glob('*.py')]})
 
 
 def test_tests_and_benchmarks_imports_are_brought_by_requirements_dev_txt():
     closure = requirements_closure(REPO / 'requirements-dev.txt')
     missing = {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
-               for directory in ('test', 'benchmarks', 'doc')
+               for directory in ('test', 'benchmarks', 'scripts', 'doc')
                for path in sorted((REPO / directory).rglob('*.py'))
                for group in import_groups(path, first_party(path))
                if not group <= NOT_ON_PYPI
@@ -293,8 +298,16 @@ def checkout(tmp_path):
 
 
 def make(directory, *args):
-    """Run make in `directory` as a user's shell would (not as a sub-make of `make test`)."""
-    env = {k: v for k, v in os.environ.items() if k not in ('MAKEFLAGS', 'MAKELEVEL', 'MFLAGS')}
+    """
+    Run make in `directory` as a user's shell would, not as a sub-make of `make test`.
+
+    A make passes the variables of its command line to what it runs, in MAKEFLAGS and the
+    environment (`make test-latest`: CONSTRAINTS= and VENV=.venv-latest); none reach this one.
+    """
+    flags = os.environ.get('MAKEFLAGS', '').split()
+    given = flags[flags.index('--') + 1:] if '--' in flags else []
+    calling_make = {'MAKEFLAGS', 'MAKELEVEL', 'MFLAGS', *(word.split('=')[0] for word in given)}
+    env = {k: v for k, v in os.environ.items() if k not in calling_make}
     return subprocess.run(['make', *args], cwd=directory, env=env, capture_output=True,
                           text=True, timeout=60)
 
@@ -315,11 +328,13 @@ def set_up(directory):
         (directory / '.venv' / f'.installed-{stamp}').touch()
 
 
+@pytest.mark.process
 def test_the_first_make_demo_installs_what_running_needs_only(checkout):
     assert planned_stages(checkout, 'demo') == {'venv', 'run', 'package'}
     assert planned_stages(checkout, 'test') == {'venv', 'run', 'dev', 'package'}
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('changed, target, stages', [
     (None, 'demo', set()), (None, 'test', set()),
     ('requirements.txt', 'demo', {'run'}), ('requirements.txt', 'test', {'run', 'dev'}),
@@ -332,6 +347,7 @@ def test_later_runs_install_only_what_a_changed_file_asks_for(
     assert planned_stages(checkout, *(['-W', changed] if changed else []), target) == stages
 
 
+@pytest.mark.process
 def test_without_python_make_says_what_to_install(checkout):
     result = make(checkout, 'demo', 'PYTHON=no-such-python3')
     assert result.returncode != 0
@@ -348,6 +364,7 @@ def pip_installs(directory, *args):
     return [command.strip() for command in commands]
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('target', ['demo', 'test'])
 def test_make_installs_the_pinned_versions(checkout, target):
     installs = pip_installs(checkout, target)
@@ -355,6 +372,7 @@ def test_make_installs_the_pinned_versions(checkout, target):
     assert all(line.endswith('--constraint constraints.txt') for line in installs), installs
 
 
+@pytest.mark.process
 def test_make_test_latest_installs_the_newest_into_a_venv_of_its_own(checkout):
     installs = pip_installs(checkout, 'test-latest')
     assert installs
@@ -362,6 +380,7 @@ def test_make_test_latest_installs_the_newest_into_a_venv_of_its_own(checkout):
     assert not any('--constraint' in line for line in installs), installs
 
 
+@pytest.mark.process
 def test_make_lock_pins_the_version_of_everything_the_requirements_install(checkout):
     venv = pathlib.Path(sys.prefix)
     stamps = [f'--old-file={venv}/.installed-{stamp}' for stamp in ('requirements-dev', 'package')]

@@ -123,6 +123,7 @@ def test_every_page_of_doc_is_in_the_readme_and_the_index():
 
 # -- the documentation's build --------------------------------------------------------------
 
+@pytest.mark.process
 def test_the_docs_build_with_sphinx_without_a_warning(tmp_path):
     """What `make docs` runs: every warning (a broken link or heading among them) fails."""
     pytest.importorskip('sphinx')

@@ -6,8 +6,10 @@ import subprocess
 import sys
 
 from harness import REPO
+import pytest
 
 
+@pytest.mark.process
 def test_mypy():
     # No cache read or written: as cold as a fresh clone in CI, and no .mypy_cache in the tree.
     result = subprocess.run(

@@ -391,6 +391,7 @@ def test_on_the_simulator_an_exception_in_a_cycle_sends_zero_torques():
     assert commands[-1] == (0,) * 5
 
 
+@pytest.mark.process
 def test_the_loop_imports_no_rclpy():
     code = 'import sys, kraft_master_driver.core.control_loop; sys.exit("rclpy" in sys.modules)'
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0

@@ -72,6 +72,7 @@ def make_device(port, **options):
     return device
 
 
+@pytest.mark.slow
 def test_thousands_of_cycles_deliver_exact_torques(sim):
     rng = random.Random(1)
     specials = [math.nan, math.inf, -math.inf, 1e9, -1e9, 0.0, 2.9995, -2.9995]
@@ -108,6 +109,7 @@ def test_thousands_of_cycles_deliver_exact_torques(sim):
     assert stats['zero_commands'] == 1
 
 
+@pytest.mark.slow
 def test_dropped_replies_count_as_timeouts(sim):
     sim.drop_reply_rate = 0.25
     device = make_device(sim.port, reply_timeout=0.02, timeouts_before_reconnect=1000)
@@ -123,6 +125,7 @@ def test_dropped_replies_count_as_timeouts(sim):
     device.close()
 
 
+@pytest.mark.slow
 def test_corrupt_bytes_are_counted_and_never_accepted(sim):
     sim.corrupt_byte_rate = 0.01
     device = make_device(sim.port, reply_timeout=0.02, timeouts_before_reconnect=1000)
@@ -173,6 +176,7 @@ def test_short_stall_times_out_then_recovers_without_reconnect(sim):
     device.close()
 
 
+@pytest.mark.slow
 def test_long_stall_declares_the_link_dead_and_reconnects(sim):
     device = make_device(sim.port, reply_timeout=0.02, timeouts_before_reconnect=5)
     assert device.cycle((0.5,) * 5) is not None

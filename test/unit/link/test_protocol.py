@@ -235,6 +235,7 @@ def test_buffer_stays_bounded_under_a_flood():
     assert_accounting(decoder, len(flood))
 
 
+@pytest.mark.slow
 @given(stream=st.binary(max_size=600), chunks=chunk_sizes,
        side=st.sampled_from(['reply', 'command']))
 @settings(FUZZ, max_examples=3000)
@@ -246,6 +247,7 @@ def test_fuzz_random_bytes_never_raise(stream, chunks, side):
     assert_accounting(decoder, len(stream))
 
 
+@pytest.mark.slow
 @given(items=reply_lists(0, 12), gaps=st.lists(garbage, max_size=13), chunks=chunk_sizes)
 @settings(FUZZ, max_examples=3000)
 def test_fuzz_every_reply_in_garbage_is_recovered(items, gaps, chunks):
@@ -260,6 +262,7 @@ def test_fuzz_every_reply_in_garbage_is_recovered(items, gaps, chunks):
         assert decoder.errors['bad_crc'] == decoder.errors['truncated'] == 0
 
 
+@pytest.mark.slow
 @given(items=count_lists(12), gaps=st.lists(garbage, max_size=13), chunks=chunk_sizes)
 @settings(FUZZ, max_examples=1000)
 def test_fuzz_every_command_in_garbage_is_recovered(items, gaps, chunks):
@@ -302,6 +305,7 @@ def mutate(stream, edits, frame_size):
     return bytes(stream), touched
 
 
+@pytest.mark.slow
 @given(items=reply_lists(1, 15), edits=mutations, chunks=chunk_sizes)
 @settings(FUZZ, max_examples=3000)
 def test_fuzz_mutated_stream(items, edits, chunks):

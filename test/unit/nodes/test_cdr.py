@@ -100,6 +100,7 @@ def test_pose_and_twist_decoded_from_rclpy_serialisation(frame_id, sec, nanosec,
             struct.pack('<d', v) for v in values[:len(got_values)]]
 
 
+@pytest.mark.slow
 @settings(max_examples=2000, deadline=None, derandomize=True)
 @given(st.binary(max_size=120) | st.builds(
     lambda data, cut, flips: bytes(

@@ -9,6 +9,7 @@ from kraft_master_driver.core.loop_statistics import LoopStatistics
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.nodes.driver_diagnostics import (
     driver_diagnostics, DriverReadings, ERROR, OK, WARN)
+import pytest
 
 
 def statistics():
@@ -117,6 +118,7 @@ def test_the_readings_are_only_read():
             dict(given.device_stats)) == before
 
 
+@pytest.mark.process
 def test_the_diagnostics_import_no_rclpy():
     code = ('import sys, kraft_master_driver.nodes.driver_diagnostics; '
             'sys.exit("rclpy" in sys.modules)')

@@ -202,6 +202,7 @@ def test_a_bad_setting_is_a_value_error_naming_it(make, name):
 WORKSPACE_CORNERS = [(x, y, z) for x in (0.2, 0.5) for y in (-0.3, 0.3) for z in (0.41, 0.55)]
 
 
+@pytest.mark.slow
 def test_the_suggested_workspace_is_within_reach_hand_down(fresh):
     quaternion = fresh.tool_quaternion()
     for corner in WORKSPACE_CORNERS:

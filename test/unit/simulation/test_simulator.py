@@ -279,6 +279,7 @@ def test_watchdog_zeroes_the_torque_and_reports_it(rig):
     assert (frame.status & STATUS_COMMAND_TIMEOUT) == 0 or simulator.stats['timeouts'] > timeouts
 
 
+@pytest.mark.slow
 def test_sweep_moves_each_joint_inside_its_limits(rig):
     simulator, host = rig(operator='sweep', operator_period=0.3)
     calibration = ArmCalibration.nominal('right')
@@ -341,6 +342,7 @@ def test_corrupted_bytes_fail_the_host_crc(rig):
     assert sequences == sorted(set(sequences))
 
 
+@pytest.mark.slow
 def test_stall_consumes_commands_without_answering(rig):
     simulator, host = rig()
     assert host.exchange() is not None
@@ -370,6 +372,7 @@ def test_unplug_fails_the_host_and_replug_serves_the_same_path(rig):
         again.close()
 
 
+@pytest.mark.slow
 def test_tcp_unplug_closes_the_connection_and_replug_serves_the_same_url(rig):
     simulator, host = rig(transport='tcp')
     url = simulator.port
@@ -389,6 +392,7 @@ def test_tcp_unplug_closes_the_connection_and_replug_serves_the_same_url(rig):
         again.close()
 
 
+@pytest.mark.slow
 def test_tcp_serves_one_host_at_a_time(rig):
     simulator, host = rig(transport='tcp')
     assert host.exchange() is not None
@@ -498,6 +502,7 @@ def read_port_line(process, timeout=30.0):
     raise AssertionError('the simulator CLI printed no port line')
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
 def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
     with running_cli('--operator', 'sweep', '--noise', '1',
@@ -514,6 +519,7 @@ def test_cli_serves_the_printed_port_and_exits_cleanly(signum):
         assert not os.path.exists(os.path.dirname(path))
 
 
+@pytest.mark.process
 def test_cli_serves_tcp_to_the_driver_device_code():
     with running_cli('--tcp') as process:
         url = read_port_line(process)
@@ -525,6 +531,7 @@ def test_cli_serves_tcp_to_the_driver_device_code():
         assert process.wait(timeout=20) == 0
 
 
+@pytest.mark.process
 def test_a_killed_simulator_leaves_a_dangling_link():
     with running_cli() as process:
         path = read_port_line(process)
@@ -550,6 +557,7 @@ def test_priority_runs_the_serving_thread_sched_fifo():
             host.close()
 
 
+@pytest.mark.process
 def test_cli_runs_its_main_thread_one_below_the_serving_thread():
     with running_cli('--priority', '20') as process:
         host = Host(read_port_line(process))
@@ -567,6 +575,7 @@ def test_cli_runs_its_main_thread_one_below_the_serving_thread():
         assert process.wait(timeout=20) == 0
 
 
+@pytest.mark.process
 def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
     without_sys_nice = ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice']
     with running_cli('--priority', '20', wrapper=without_sys_nice) as process:
@@ -580,6 +589,7 @@ def test_cli_warns_when_the_priority_is_refused_and_serves_anyway():
         assert 'warning: SCHED_FIFO 20 refused' in process.stderr.read()
 
 
+@pytest.mark.process
 def test_cli_refuses_an_unreadable_calibration():
     result = subprocess.run(
         [sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
@@ -602,6 +612,7 @@ def test_push_operator_moves_the_wrist_straight_down_and_back():
     assert wrist(1.0)[2] == pytest.approx(top[2] - PushOperator.DEPTH / 2, abs=0.005)
 
 
+@pytest.mark.slow
 def test_push_operator_takes_hold_at_the_hosts_first_command():
     with SimulatedKraftMaster(operator='push') as simulator:
         time.sleep(1.5)  # three quarters of a stroke, had the push started with the simulator

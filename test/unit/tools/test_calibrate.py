@@ -47,6 +47,7 @@ def assert_same_calibration(loaded, fitted):
     np.testing.assert_allclose(np.degrees(loaded.angle_b), np.degrees(fitted.angle_b), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_operator_at_the_stops_recovers_the_true_lines_over_the_pty(tmp_path, capsys):
     truth = true_calibration('right')
     assert worst_error_deg(ArmCalibration.nominal('right'), truth).min() > 1.0
@@ -98,6 +99,7 @@ def test_operator_at_the_stops_recovers_the_true_lines_over_the_pty(tmp_path, ca
     assert written['calibration'].keys() == shipped['calibration'].keys()
 
 
+@pytest.mark.slow
 def test_sim_port_runs_the_simulated_operator(tmp_path, capsys):
     truth = true_calibration('left')
     truth_file = tmp_path / 'truth.yaml'
@@ -134,6 +136,7 @@ def test_operator_can_skip_and_quit_and_nothing_is_written(tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_silent_device_is_an_error(tmp_path, capsys):
     with SimulatedKraftMaster(arm='right', drop_reply_rate=1.0) as simulator:
         code = calibrate.main(['--arm', 'right', '--port', simulator.port,

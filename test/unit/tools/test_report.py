@@ -168,6 +168,7 @@ def columns(names, rows, prefix='', suffix=''):
                     n.endswith(suffix)]]
 
 
+@pytest.mark.slow
 def test_report_of_two_arms_writes_figures_and_the_samples(tmp_path, capsys):
     bag = tmp_path / 'session'
     samples = write_bag(bag, 'mcap', {'/left': ('left', 3), '/right': ('right', 4)})
@@ -193,6 +194,7 @@ def test_report_of_two_arms_writes_figures_and_the_samples(tmp_path, capsys):
     assert 'missing' not in printed
 
 
+@pytest.mark.slow
 def test_missing_topics_are_named_and_the_rest_reported(tmp_path, capsys):
     bag = tmp_path / 'partial'
     expected = simulate_samples(200, 'right', seed=5)
@@ -224,6 +226,7 @@ def test_missing_topics_are_named_and_the_rest_reported(tmp_path, capsys):
     assert imread(out / 'partial_report.png').size
 
 
+@pytest.mark.slow
 def test_recalibration_from_the_recorded_pots(tmp_path, capsys):
     bag = tmp_path / 'session'
     samples = write_bag(bag, 'sqlite3', {'/right': ('right', 6)})['/right']
@@ -301,6 +304,7 @@ def test_storage_file_of_a_bag_reads_as_the_bag(tmp_path, capsys):
     assert 'cannot write the report' in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings('error')
 def test_session_without_samples_still_reports(tmp_path, capsys):
     bag = tmp_path / 'empty'
@@ -341,6 +345,7 @@ def driver_values(errors, late, round_trip_ms):
             'link timeouts': str(errors), 'link bad_crc': '0'}
 
 
+@pytest.mark.slow
 def test_diagnostics_on_slash_diagnostics_are_told_apart_by_node_name(tmp_path, capsys):
     bag = tmp_path / 'two_arms'
     with BagRecorder(bag, 'mcap') as recorder:

@@ -12,7 +12,8 @@ through the suite's own injection functions, and measures the time to zero torqu
 recovery. The driver's RSS is sampled every 10 s from /proc. At the end the summary is
 printed and written as JSON: cycles, faults injected by kind, the largest time to zero torque
 and to recovery per kind, recoveries, the RSS slope, and the frames received, published and
-delivered (which must all agree).
+delivered (which must all agree). `make soak` runs it, with test/ on PYTHONPATH for the
+harness.
 """
 import argparse
 import collections
@@ -22,34 +23,21 @@ import pathlib
 import platform
 import random
 import signal
-import subprocess
 import sys
 import tempfile
 import time
 
+from harness import faults
+from harness.driver import colcon_build, installed_env
 import numpy as np
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(REPO), str(REPO / 'test')]
-
-from harness import faults, PACKAGE  # noqa: E402, I100
-from harness.driver import installed_env  # noqa: E402
 
 RATE_HZ = 1000.0
 RSS_PERIOD_S = 10.0
 WARM_UP_S = 60.0  # RSS samples before this are left out of the slope
 RECORD_S = 120.0  # commands the simulator keeps: enough for the longest fault
 RECOVERY_LIMIT_S = 20.0  # a fault not recovered from within this is a failed recovery
-
-
-def build(workdir):
-    """Build and install the package with colcon into `workdir`; return the install prefix."""
-    colcon = pathlib.Path(sys.executable).parent / 'colcon'
-    subprocess.run([str(colcon), '--log-base', str(workdir / 'log'), 'build', '--base-paths',
-                    str(REPO), '--build-base', str(workdir / 'build'), '--install-base',
-                    str(workdir / 'install')], cwd=workdir, check=True,
-                   stdout=subprocess.DEVNULL)
-    return workdir / 'install' / PACKAGE
 
 
 def rss_kib(pid):
@@ -218,12 +206,12 @@ def main():
     parser.add_argument('--fault-gap', type=float, default=15.0,
                         help='mean seconds between faults (default 15)')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
-    parser.add_argument('--json', help='write the figures here (default benchmarks/results/)')
+    parser.add_argument('--json', help='write the figures here (default build/soak/)')
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix='kraft_soak_') as workdir:
         print('building the package with colcon ...', flush=True)
-        prefix = build(pathlib.Path(workdir))
+        prefix = colcon_build(pathlib.Path(workdir))
         session = faults.FaultSession(prefix, faults.SEVERAL_SOURCES, loop_rate_hz=RATE_HZ,
                                       record=int(RECORD_S * RATE_HZ))
         try:
@@ -244,7 +232,7 @@ def main():
     figures['machine'] = {'platform': platform.platform(), 'python': platform.python_version(),
                           'cpus': os.cpu_count(), 'load_average': os.getloadavg()}
     print_summary(figures)
-    out = pathlib.Path(args.json or REPO / 'benchmarks' / 'results' /
+    out = pathlib.Path(args.json or REPO / 'build' / 'soak' /
                        time.strftime('soak-%Y%m%d-%H%M%S.json'))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(figures, indent=2, default=float))
