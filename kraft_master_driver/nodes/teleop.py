@@ -7,7 +7,8 @@ Master side, the driver's names: it takes `pose` and `master_energy`, publishes 
 `slave_energy`. Arm side, CRTK names to remap: it publishes `servo_cp` (pose mode) or
 `servo_cv` (twist mode) and takes `measured_cp` and `measured_cf`. `clutch` (or a `joy`
 button) holds the arm and frees the master; the services `enable` and `tare` start it and zero
-the F/T bias. The logic is core.teleoperation.Teleoperation; this node only moves messages.
+the F/T bias. The logic is core.teleoperation.Teleoperation: each input and each tick goes in
+as one call and comes back as what to send; this node decodes, calls and publishes.
 
 The four streaming inputs (pose, master_energy, measured_cp, measured_cf) are taken raw by a
 thread of their own that waits on them alone and handles each message as it comes, and
@@ -25,7 +26,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import realtime
 from kraft_master_driver.core.link_quality import LinkMonitor
-from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
+from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
+from kraft_master_driver.core.teleoperation_settings import MODES, ORIENTATIONS, Settings
 from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.driver_diagnostics import link_values
 from kraft_master_driver.nodes.node_process import run_node
@@ -41,7 +43,6 @@ from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
-MODES = ('pose', 'twist')
 _DEFAULT = Settings()
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
@@ -50,14 +51,14 @@ INPUT_WAIT_S = 0.02
 
 
 def _spec(name, description, **bounds):
-    """Return a Spec whose default is core.teleoperation.Settings' value of `name`."""
+    """Return a Spec whose default is core.teleoperation_settings.Settings' value of `name`."""
     default = getattr(_DEFAULT, name)
     return Spec(list(default) if isinstance(default, tuple) else default, description, **bounds)
 
 
 PARAMETERS = {
-    'mode': Spec('pose', "'pose': publish servo_cp, the target pose; 'twist': publish "
-                 'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
+    'mode': _spec('mode', "'pose': publish servo_cp, the target pose; 'twist': publish "
+                  'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
     'rate_hz': Spec(100.0, 'Rate of the timeout checks, of the hold command while not '
                     'following, and of slave_energy (Hz).', low=1.0, high=2000.0),
     'scale': _spec('scale', 'Arm motion per master motion (1).', low=0.001, high=100.0),
@@ -152,9 +153,9 @@ class TeleopNode(Node):
         self.clutch_button = config['clutch_button']
         self.enable_at_start = config['enable_at_start']
         self.pose_link = LinkMonitor()  # the master's pose: delay and loss on the way here
-        self._tf = self._tf_buffer() if config['base_rotation_from_tf'] else None
+        self._base_rotation_from_tf = (self._tf_lookup() if config['base_rotation_from_tf']
+                                       else None)
         self._clutch_inputs = {'clutch': False, 'joy': False}
-        self._published_state = None
         self._input_priority = config['input_priority']
         self._executor_thread = threading.get_native_id()  # the thread that will spin the node
         self.scheduling = realtime.Scheduling()
@@ -199,7 +200,7 @@ class TeleopNode(Node):
         self.create_service(Trigger, 'tare', self._on_tare)
         self._tick_period = 1.0 / config['rate_hz']
         steady_timer(self, 1.0, self._publish_diagnostics)
-        self._publish_state()
+        self._send(self.bridge.first_outputs())
         self._running = True
         self._input_thread = threading.Thread(target=self._take_inputs, name='teleop_inputs')
         self._input_thread.start()
@@ -208,8 +209,13 @@ class TeleopNode(Node):
             f'{config["orientation"]}; DISABLED until the enable service is called'
             + (' (enabled at start once it can be)' if self.enable_at_start else ''))
 
-    def _tf_buffer(self):
-        """Return (tf2_ros, a Buffer this node's TransformListener fills)."""
+    def _tf_lookup(self):
+        """
+        Return a lookup of base_rotation in TF, from a Buffer this node's listener fills.
+
+        The lookup returns the rotation of master_frame in arm_frame (x, y, z, w), or raises
+        NoBaseRotation saying why there is none.
+        """
         try:
             import tf2_ros
         except ImportError:
@@ -218,7 +224,17 @@ class TeleopNode(Node):
                                  'base_rotation') from None
         buffer = tf2_ros.Buffer()
         self._tf_listener = tf2_ros.TransformListener(buffer, self)
-        return tf2_ros, buffer
+        settings = self.bridge.settings
+
+        def look_up():
+            try:
+                rotation = buffer.lookup_transform(
+                    settings.arm_frame, settings.master_frame, Time()).transform.rotation
+            except tf2_ros.TransformException as error:
+                raise NoBaseRotation(f'no TF from {settings.master_frame} to '
+                                     f'{settings.arm_frame} ({error})') from None
+            return rotation.x, rotation.y, rotation.z, rotation.w
+        return look_up
 
     def destroy_node(self):
         """Stop the input thread, then the node."""
@@ -287,38 +303,26 @@ class TeleopNode(Node):
                                             throttle_duration_sec=1.0)
         return taken_any
 
-    def _refused(self, refusal):
-        """Log a refused input in one line, then publish the state it left."""
-        if refusal is not None:
-            self.get_logger().error(refusal, throttle_duration_sec=1.0)
-        self._publish_state()
-
     def _on_pose(self, data, received_ns):
         sec, nanosec, frame_id, values = POSE_STAMPED.decode(data)
         self.pose_link.add(sec * 1_000_000_000 + nanosec, received_ns)
-        self._refused(self.bridge.master_pose(frame_id, values[:3], values[3:],
-                                              time.monotonic()))
-        if self.bridge.following:
-            self._publish_command()
+        self._send(self.bridge.master_pose(frame_id, values[:3], values[3:], time.monotonic()))
 
     def _on_master_energy(self, data, _received_ns):
         self.bridge.master_energy(VECTOR3_STAMPED.decode(data)[3][0])
 
     def _on_measured_cp(self, data, _received_ns):
         _, _, frame_id, values = POSE_STAMPED.decode(data)
-        self._refused(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
+        self._send(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
 
     def _on_measured_cf(self, data, _received_ns):
         _, _, frame_id, values = cdr.decode_wrench_stamped(data)
-        now = time.monotonic()
-        self._refused(self.bridge.ft_reading(frame_id, values, now))
-        self._publish_wrench(self.bridge.master_wrench(now))
+        self._send(self.bridge.ft_reading(frame_id, values, time.monotonic()))
 
     def _set_clutch(self, source, pressed):
         with self._lock:
             self._clutch_inputs[source] = pressed
-            self.bridge.set_clutch(any(self._clutch_inputs.values()))
-            self._publish_state()
+            self._send(self.bridge.set_clutch(any(self._clutch_inputs.values())))
 
     def _on_clutch(self, msg):
         self._set_clutch('clutch', bool(msg.data))
@@ -331,33 +335,13 @@ class TeleopNode(Node):
             return
         self._set_clutch('joy', msg.buttons[self.clutch_button] == 1)
 
-    def _enable(self, now):
-        """Enable the bridge, with base_rotation from TF first if asked; return why not."""
-        if self._tf is not None and self.bridge.state not in ('ENABLED', 'CLUTCHED'):
-            tf2_ros, buffer = self._tf
-            settings = self.bridge.settings
-            try:
-                rotation = buffer.lookup_transform(
-                    settings.arm_frame, settings.master_frame, Time()).transform.rotation
-            except tf2_ros.TransformException as error:
-                return (f'no TF from {settings.master_frame} to {settings.arm_frame} '
-                        f'({error}): not enabled')
-            refusal = self.bridge.set_base_rotation(
-                (rotation.x, rotation.y, rotation.z, rotation.w))
-            if refusal is not None:
-                return f'TF {refusal}: not enabled'
-        return self.bridge.enable(now)
-
     def _on_enable(self, request, response):
         with self._lock:
-            if request.data:
-                refusal = self._enable(time.monotonic())
-                response.success = refusal is None
-                response.message = refusal or self.bridge.describe()
-            else:
-                self.bridge.disable()
-                response.success, response.message = True, self.bridge.describe()
-            self._publish_state()
+            answer = (self.bridge.enable(time.monotonic(), self._base_rotation_from_tf)
+                      if request.data else self.bridge.disable())
+            self._send(answer.outputs)
+        response.success = answer.refusal is None
+        response.message = answer.refusal or answer.state
         self.get_logger().info(f'enable {request.data}: {response.message}')
         return response
 
@@ -374,48 +358,33 @@ class TeleopNode(Node):
         """Return this node's clock now as (sec, nanosec), for a header's stamp."""
         return divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
 
-    def _publish_command(self):
-        """Publish the arm's command: the target or held pose, or the twist toward it."""
-        if self.mode == 'pose':
-            pose = self.bridge.arm_command()
-            if pose is None:
-                return
-            values = (*pose.position, *pose.quaternion)
-        else:
-            if self.bridge.state == 'DISABLED':
-                return
-            values = self.bridge.arm_twist()
-        self.servo_pub.publish(self._servo_cdr.encode(*self._now(), values))
-
-    def _publish_wrench(self, wrench):
-        self.wrench_pub.publish(self._wrench_cdr.encode(*self._now(), wrench))
-
-    def _publish_state(self):
-        text = self.bridge.describe()
-        if text != self._published_state:
-            self._published_state = text
+    def _send(self, outputs):
+        """Publish what the bridge returned: a refusal logged, state, command, wrench, energy."""
+        if outputs.refusal is not None:
+            self.get_logger().error(outputs.refusal, throttle_duration_sec=1.0)
+        if outputs.state is not None:
+            text = outputs.state.text
             self.state_pub.publish(String(data=text))
-            if self.bridge.state == 'FAULT':
+            if outputs.state.state is OperatingState.FAULT:
                 self.get_logger().error(text)
+        if outputs.command is not None:
+            self.servo_pub.publish(self._servo_cdr.encode(*self._now(), outputs.command))
+        if outputs.wrench is not None:
+            self.wrench_pub.publish(self._wrench_cdr.encode(*self._now(), outputs.wrench))
+        if outputs.slave_energy is not None:
+            self.energy_pub.publish(self._energy_cdr.encode(*self._now(), outputs.slave_energy))
 
     def _tick(self):
-        """Apply the timeouts; while not following, hold the arm and send the master zero."""
+        """Enable at start once it can; send what the bridge's tick returns."""
         with self._lock:
             now = time.monotonic()
-            bridge = self.bridge
-            if self.enable_at_start and self._enable(now) is None:
-                self.enable_at_start = False
-                self.get_logger().info(f'enabled at start: {bridge.describe()}')
-            bridge.check(now)
-            self._publish_state()
-            if not bridge.following:
-                self._publish_command()
-                self._publish_wrench(bridge.master_wrench(now))
-            elif not bridge.settings.force_feedback:
-                self._publish_wrench(bridge.master_wrench(now))
-            port = bridge.port
-            energies = port.energy_in, port.energy_out, port.dissipated
-        self.energy_pub.publish(self._energy_cdr.encode(*self._now(), energies))
+            if self.enable_at_start:
+                answer = self.bridge.enable(now, self._base_rotation_from_tf)
+                self._send(answer.outputs)
+                if answer.refusal is None:
+                    self.enable_at_start = False
+                    self.get_logger().info(f'enabled at start: {answer.state}')
+            self._send(self.bridge.tick(now))
 
     def _publish_diagnostics(self):
         with self._lock:
@@ -423,8 +392,9 @@ class TeleopNode(Node):
 
     def _publish_status(self):
         bridge, port = self.bridge, self.bridge.port
-        level = DiagnosticStatus.ERROR if bridge.state == 'FAULT' else DiagnosticStatus.OK
-        values = {'state': bridge.state, 'reason': bridge.reason, 'mode': self.mode,
+        level = (DiagnosticStatus.ERROR if bridge.state is OperatingState.FAULT
+                 else DiagnosticStatus.OK)
+        values = {'state': str(bridge.state), 'reason': bridge.reason, 'mode': self.mode,
                   'clutch': 'pressed' if bridge.clutch_pressed else 'released',
                   'passivity': 'on' if port.enabled else 'off',
                   'slave energy in (J)': f'{port.energy_in:.4f}',
