@@ -17,7 +17,6 @@ messages and executor the bridge kept up with about one pose in 15 at 1 kHz
 (benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
 """
 from contextlib import ExitStack
-import math
 import sys
 import threading
 import time
@@ -27,13 +26,15 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchS
 from kraft_master_driver.core import realtime
 from kraft_master_driver.core.link_quality import LinkMonitor
 from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
-from kraft_master_driver.core.teleoperation_settings import MODES, ORIENTATIONS, Settings
+from kraft_master_driver.core.teleoperation_settings import Settings
 from kraft_master_driver.nodes import cdr
-from kraft_master_driver.nodes.driver_diagnostics import link_values
+from kraft_master_driver.nodes.driver_diagnostics import ERROR, OK
 from kraft_master_driver.nodes.node_process import run_node
-from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
+from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError
 from kraft_master_driver.nodes.ros_helpers import (
     GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
+from kraft_master_driver.nodes.teleop_diagnostics import bridge_diagnostics
+from kraft_master_driver.nodes.teleop_parameters import PARAMETERS
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -43,97 +44,11 @@ from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
-_DEFAULT = Settings()
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
 # The longest the input thread waits for a message before it checks whether to stop (s).
 INPUT_WAIT_S = 0.02
-
-
-def _spec(name, description, **bounds):
-    """Return a Spec whose default is core.teleoperation_settings.Settings' value of `name`."""
-    default = getattr(_DEFAULT, name)
-    return Spec(list(default) if isinstance(default, tuple) else default, description, **bounds)
-
-
-PARAMETERS = {
-    'mode': _spec('mode', "'pose': publish servo_cp, the target pose; 'twist': publish "
-                  'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
-    'rate_hz': Spec(100.0, 'Rate of the timeout checks, of the hold command while not '
-                    'following, and of slave_energy (Hz).', low=1.0, high=2000.0),
-    'scale': _spec('scale', 'Arm motion per master motion (1).', low=0.001, high=100.0),
-    'orientation': Spec('follow', "'follow': the arm turns as the master does; 'fixed': it "
-                        "keeps its orientation at registration; 'ignore': not commanded (pose "
-                        'mode sends the measured one, twist mode no rotation).',
-                        choices=ORIENTATIONS),
-    'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
-                           "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
-                           'w.'),
-    'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
-                                  'rotation of master_frame in arm_frame (needs tf2_ros).'),
-    'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
-                             'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
-    'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
-                          'base_frame.'),
-    'arm_frame': _spec('arm_frame', 'frame_id of measured_cp, servo_cp and servo_cv: the '
-                       "arm's base frame."),
-    'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame.'),
-    'workspace_min': _spec('workspace_min', "Lower corner of the box the arm's target stays "
-                           'in (m, arm base frame).'),
-    'workspace_max': _spec('workspace_max', 'Upper corner of that box (m).'),
-    'max_linear_speed': _spec('max_linear_speed', "Speed limit of the arm's target (m/s).",
-                              low=0.001, high=10.0),
-    'max_angular_speed': _spec('max_angular_speed', "Angular speed limit of the arm's target "
-                               '(rad/s).', low=0.001, high=100.0),
-    'twist_gain': _spec('twist_gain', 'Twist mode: servo_cv = gain * (target - measured), '
-                        '(1/s).', low=0.001, high=1000.0),
-    'master_timeout': _spec('master_timeout', 'An older pose holds the arm (s).',
-                            low=0.001, high=10.0),
-    'arm_timeout': _spec('arm_timeout', 'An older measured_cp is a FAULT (s).',
-                         low=0.001, high=10.0),
-    'ft_timeout': _spec('ft_timeout', 'An older measured_cf is a FAULT (s).',
-                        low=0.001, high=10.0),
-    'max_tracking_error': _spec('max_tracking_error', 'measured_cp farther from the command '
-                                'is a FAULT (m).', low=0.0001, high=10.0),
-    'max_tracking_angle': _spec('max_tracking_angle', 'measured_cp turned farther from the '
-                                'command is a FAULT (rad).', low=0.0001, high=math.pi),
-    'force_feedback': _spec('force_feedback', 'Reflect measured_cf to the master; false: no '
-                            'F/T sensor, zero wrench.'),
-    'tool_mass': _spec('tool_mass', 'Mass of the tool beyond the sensor (kg).',
-                       low=0.0, high=100.0),
-    'tool_com': _spec('tool_com', "The tool's centre of mass (m, sensor frame)."),
-    'gravity': _spec('gravity', 'Gravity (m/s^2, arm base frame).'),
-    'force_scale': _spec('force_scale', 'Master force per arm force (1).', low=0.0, high=100.0),
-    'moment_scale': _spec('moment_scale', 'Master moment per arm moment (1).',
-                          low=0.0, high=100.0),
-    'force_deadband': _spec('force_deadband', 'Forces below this are not reflected (N, '
-                            'master side).', low=0.0, high=100.0),
-    'moment_deadband': _spec('moment_deadband', 'Moments below this are not reflected (N*m).',
-                             low=0.0, high=10.0),
-    'force_cutoff_hz': _spec('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
-                             'wrench (Hz); 0: none.', low=0.0, high=1000.0),
-    'max_force': _spec('max_force', 'Largest force sent to the master (N).',
-                       low=0.0, high=200.0),
-    'max_moment': _spec('max_moment', 'Largest moment sent to the master (N*m).',
-                        low=0.0, high=20.0),
-    'max_input_force': _spec('max_input_force', 'A larger measured_cf force is refused (N).',
-                             low=1.0, high=1e5),
-    'max_input_moment': _spec('max_input_moment', 'A larger measured_cf moment is refused '
-                              '(N*m).', low=0.1, high=1e4),
-    'max_input_position': _spec('max_input_position', 'A pose or measured_cp farther from its '
-                                'base is refused (m).', low=0.1, high=1000.0),
-    'passivity': _spec('passivity', "Time-domain passivity control of the arm's command, fed "
-                       'by master_energy.'),
-    'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
-                        low=0.0, high=1000.0),
-    'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
-                            'files); false: wait for the enable service.'),
-    'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
-                          low=-1, high=127),
-    'input_priority': Spec(0, 'SCHED_FIFO priority of the thread that takes the streaming '
-                           "inputs and sends servo_cp, servo_cv and wrench, the executor's "
-                           'thread one below; 0: normal scheduling.', low=0, high=98),
-}
+DIAGNOSTIC_LEVELS = {OK: DiagnosticStatus.OK, ERROR: DiagnosticStatus.ERROR}
 
 
 class TeleopNode(Node):
@@ -388,31 +303,14 @@ class TeleopNode(Node):
 
     def _publish_diagnostics(self):
         with self._lock:
-            self._publish_status()
-
-    def _publish_status(self):
-        bridge, port = self.bridge, self.bridge.port
-        level = (DiagnosticStatus.ERROR if bridge.state is OperatingState.FAULT
-                 else DiagnosticStatus.OK)
-        values = {'state': str(bridge.state), 'reason': bridge.reason, 'mode': self.mode,
-                  'clutch': 'pressed' if bridge.clutch_pressed else 'released',
-                  'passivity': 'on' if port.enabled else 'off',
-                  'slave energy in (J)': f'{port.energy_in:.4f}',
-                  'slave energy out (J)': f'{port.energy_out:.4f}',
-                  'slave energy dissipated (J)': f'{port.dissipated:.4f}',
-                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}',
-                  'input scheduler': self.scheduling.thread,
-                  'executor scheduler': self.scheduling.executor,
-                  'memory lock': self.scheduling.memory_lock}
-        link = self.pose_link.summary()
-        if link is not None:
-            values.update(link_values('master to slave', link))
-        array = DiagnosticArray(status=[DiagnosticStatus(
-            name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
-            message=bridge.describe(),
-            values=[KeyValue(key=k, value=v) for k, v in values.items()])])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self.diag_pub.publish(array)
+            level, message, values = bridge_diagnostics(self.bridge, self.scheduling,
+                                                        self.pose_link.summary())
+            array = DiagnosticArray(status=[DiagnosticStatus(
+                name=f'{self.get_fully_qualified_name()}: teleoperation bridge',
+                level=DIAGNOSTIC_LEVELS[level], message=message,
+                values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+            array.header.stamp = self.get_clock().now().to_msg()
+            self.diag_pub.publish(array)
 
 
 def main(args=None):
