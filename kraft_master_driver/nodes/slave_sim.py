@@ -21,7 +21,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
-from kraft_master_driver.core.teleoperation import Settings
+from kraft_master_driver.core.teleoperation_settings import Settings
 from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import (

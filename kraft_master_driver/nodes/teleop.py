@@ -7,7 +7,8 @@ Master side, the driver's names: it takes `pose` and `master_energy`, publishes 
 `slave_energy`. Arm side, CRTK names to remap: it publishes `servo_cp` (pose mode) or
 `servo_cv` (twist mode) and takes `measured_cp` and `measured_cf`. `clutch` (or a `joy`
 button) holds the arm and frees the master; the services `enable` and `tare` start it and zero
-the F/T bias. The logic is core.teleoperation.Teleoperation; this node only moves messages.
+the F/T bias. The logic is core.teleoperation.Teleoperation: each input and each tick goes in
+as one call and comes back as what to send; this node decodes, calls and publishes.
 
 The four streaming inputs (pose, master_energy, measured_cp, measured_cf) are taken raw by a
 thread of their own that waits on them alone and handles each message as it comes, and
@@ -16,7 +17,6 @@ messages and executor the bridge kept up with about one pose in 15 at 1 kHz
 (benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
 """
 from contextlib import ExitStack
-import math
 import sys
 import threading
 import time
@@ -25,13 +25,16 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import realtime
 from kraft_master_driver.core.link_quality import LinkMonitor
-from kraft_master_driver.core.teleoperation import ORIENTATIONS, Settings, Teleoperation
+from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
+from kraft_master_driver.core.teleoperation_settings import Settings
 from kraft_master_driver.nodes import cdr
-from kraft_master_driver.nodes.driver_diagnostics import link_values
+from kraft_master_driver.nodes.driver_diagnostics import ERROR, OK
 from kraft_master_driver.nodes.node_process import run_node
-from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
+from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError
 from kraft_master_driver.nodes.ros_helpers import (
     GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
+from kraft_master_driver.nodes.teleop_diagnostics import bridge_diagnostics
+from kraft_master_driver.nodes.teleop_parameters import PARAMETERS
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
@@ -41,98 +44,11 @@ from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
-MODES = ('pose', 'twist')
-_DEFAULT = Settings()
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
 # The longest the input thread waits for a message before it checks whether to stop (s).
 INPUT_WAIT_S = 0.02
-
-
-def _spec(name, description, **bounds):
-    """Return a Spec whose default is core.teleoperation.Settings' value of `name`."""
-    default = getattr(_DEFAULT, name)
-    return Spec(list(default) if isinstance(default, tuple) else default, description, **bounds)
-
-
-PARAMETERS = {
-    'mode': Spec('pose', "'pose': publish servo_cp, the target pose; 'twist': publish "
-                 'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
-    'rate_hz': Spec(100.0, 'Rate of the timeout checks, of the hold command while not '
-                    'following, and of slave_energy (Hz).', low=1.0, high=2000.0),
-    'scale': _spec('scale', 'Arm motion per master motion (1).', low=0.001, high=100.0),
-    'orientation': Spec('follow', "'follow': the arm turns as the master does; 'fixed': it "
-                        "keeps its orientation at registration; 'ignore': not commanded (pose "
-                        'mode sends the measured one, twist mode no rotation).',
-                        choices=ORIENTATIONS),
-    'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
-                           "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
-                           'w.'),
-    'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
-                                  'rotation of master_frame in arm_frame (needs tf2_ros).'),
-    'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
-                             'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
-    'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
-                          'base_frame.'),
-    'arm_frame': _spec('arm_frame', 'frame_id of measured_cp, servo_cp and servo_cv: the '
-                       "arm's base frame."),
-    'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame.'),
-    'workspace_min': _spec('workspace_min', "Lower corner of the box the arm's target stays "
-                           'in (m, arm base frame).'),
-    'workspace_max': _spec('workspace_max', 'Upper corner of that box (m).'),
-    'max_linear_speed': _spec('max_linear_speed', "Speed limit of the arm's target (m/s).",
-                              low=0.001, high=10.0),
-    'max_angular_speed': _spec('max_angular_speed', "Angular speed limit of the arm's target "
-                               '(rad/s).', low=0.001, high=100.0),
-    'twist_gain': _spec('twist_gain', 'Twist mode: servo_cv = gain * (target - measured), '
-                        '(1/s).', low=0.001, high=1000.0),
-    'master_timeout': _spec('master_timeout', 'An older pose holds the arm (s).',
-                            low=0.001, high=10.0),
-    'arm_timeout': _spec('arm_timeout', 'An older measured_cp is a FAULT (s).',
-                         low=0.001, high=10.0),
-    'ft_timeout': _spec('ft_timeout', 'An older measured_cf is a FAULT (s).',
-                        low=0.001, high=10.0),
-    'max_tracking_error': _spec('max_tracking_error', 'measured_cp farther from the command '
-                                'is a FAULT (m).', low=0.0001, high=10.0),
-    'max_tracking_angle': _spec('max_tracking_angle', 'measured_cp turned farther from the '
-                                'command is a FAULT (rad).', low=0.0001, high=math.pi),
-    'force_feedback': _spec('force_feedback', 'Reflect measured_cf to the master; false: no '
-                            'F/T sensor, zero wrench.'),
-    'tool_mass': _spec('tool_mass', 'Mass of the tool beyond the sensor (kg).',
-                       low=0.0, high=100.0),
-    'tool_com': _spec('tool_com', "The tool's centre of mass (m, sensor frame)."),
-    'gravity': _spec('gravity', 'Gravity (m/s^2, arm base frame).'),
-    'force_scale': _spec('force_scale', 'Master force per arm force (1).', low=0.0, high=100.0),
-    'moment_scale': _spec('moment_scale', 'Master moment per arm moment (1).',
-                          low=0.0, high=100.0),
-    'force_deadband': _spec('force_deadband', 'Forces below this are not reflected (N, '
-                            'master side).', low=0.0, high=100.0),
-    'moment_deadband': _spec('moment_deadband', 'Moments below this are not reflected (N*m).',
-                             low=0.0, high=10.0),
-    'force_cutoff_hz': _spec('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
-                             'wrench (Hz); 0: none.', low=0.0, high=1000.0),
-    'max_force': _spec('max_force', 'Largest force sent to the master (N).',
-                       low=0.0, high=200.0),
-    'max_moment': _spec('max_moment', 'Largest moment sent to the master (N*m).',
-                        low=0.0, high=20.0),
-    'max_input_force': _spec('max_input_force', 'A larger measured_cf force is refused (N).',
-                             low=1.0, high=1e5),
-    'max_input_moment': _spec('max_input_moment', 'A larger measured_cf moment is refused '
-                              '(N*m).', low=0.1, high=1e4),
-    'max_input_position': _spec('max_input_position', 'A pose or measured_cp farther from its '
-                                'base is refused (m).', low=0.1, high=1000.0),
-    'passivity': _spec('passivity', "Time-domain passivity control of the arm's command, fed "
-                       'by master_energy.'),
-    'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
-                        low=0.0, high=1000.0),
-    'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
-                            'files); false: wait for the enable service.'),
-    'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
-                          low=-1, high=127),
-    'input_priority': Spec(0, 'SCHED_FIFO priority of the thread that takes the streaming '
-                           "inputs and sends servo_cp, servo_cv and wrench, the executor's "
-                           'thread one below; 0: normal scheduling.', low=0, high=98),
-}
+DIAGNOSTIC_LEVELS = {OK: DiagnosticStatus.OK, ERROR: DiagnosticStatus.ERROR}
 
 
 class TeleopNode(Node):
@@ -152,9 +68,9 @@ class TeleopNode(Node):
         self.clutch_button = config['clutch_button']
         self.enable_at_start = config['enable_at_start']
         self.pose_link = LinkMonitor()  # the master's pose: delay and loss on the way here
-        self._tf = self._tf_buffer() if config['base_rotation_from_tf'] else None
+        self._base_rotation_from_tf = (self._tf_lookup() if config['base_rotation_from_tf']
+                                       else None)
         self._clutch_inputs = {'clutch': False, 'joy': False}
-        self._published_state = None
         self._input_priority = config['input_priority']
         self._executor_thread = threading.get_native_id()  # the thread that will spin the node
         self.scheduling = realtime.Scheduling()
@@ -199,7 +115,7 @@ class TeleopNode(Node):
         self.create_service(Trigger, 'tare', self._on_tare)
         self._tick_period = 1.0 / config['rate_hz']
         steady_timer(self, 1.0, self._publish_diagnostics)
-        self._publish_state()
+        self._send(self.bridge.first_outputs())
         self._running = True
         self._input_thread = threading.Thread(target=self._take_inputs, name='teleop_inputs')
         self._input_thread.start()
@@ -208,8 +124,13 @@ class TeleopNode(Node):
             f'{config["orientation"]}; DISABLED until the enable service is called'
             + (' (enabled at start once it can be)' if self.enable_at_start else ''))
 
-    def _tf_buffer(self):
-        """Return (tf2_ros, a Buffer this node's TransformListener fills)."""
+    def _tf_lookup(self):
+        """
+        Return a lookup of base_rotation in TF, from a Buffer this node's listener fills.
+
+        The lookup returns the rotation of master_frame in arm_frame (x, y, z, w), or raises
+        NoBaseRotation saying why there is none.
+        """
         try:
             import tf2_ros
         except ImportError:
@@ -218,7 +139,17 @@ class TeleopNode(Node):
                                  'base_rotation') from None
         buffer = tf2_ros.Buffer()
         self._tf_listener = tf2_ros.TransformListener(buffer, self)
-        return tf2_ros, buffer
+        settings = self.bridge.settings
+
+        def look_up():
+            try:
+                rotation = buffer.lookup_transform(
+                    settings.arm_frame, settings.master_frame, Time()).transform.rotation
+            except tf2_ros.TransformException as error:
+                raise NoBaseRotation(f'no TF from {settings.master_frame} to '
+                                     f'{settings.arm_frame} ({error})') from None
+            return rotation.x, rotation.y, rotation.z, rotation.w
+        return look_up
 
     def destroy_node(self):
         """Stop the input thread, then the node."""
@@ -287,38 +218,26 @@ class TeleopNode(Node):
                                             throttle_duration_sec=1.0)
         return taken_any
 
-    def _refused(self, refusal):
-        """Log a refused input in one line, then publish the state it left."""
-        if refusal is not None:
-            self.get_logger().error(refusal, throttle_duration_sec=1.0)
-        self._publish_state()
-
     def _on_pose(self, data, received_ns):
         sec, nanosec, frame_id, values = POSE_STAMPED.decode(data)
         self.pose_link.add(sec * 1_000_000_000 + nanosec, received_ns)
-        self._refused(self.bridge.master_pose(frame_id, values[:3], values[3:],
-                                              time.monotonic()))
-        if self.bridge.following:
-            self._publish_command()
+        self._send(self.bridge.master_pose(frame_id, values[:3], values[3:], time.monotonic()))
 
     def _on_master_energy(self, data, _received_ns):
         self.bridge.master_energy(VECTOR3_STAMPED.decode(data)[3][0])
 
     def _on_measured_cp(self, data, _received_ns):
         _, _, frame_id, values = POSE_STAMPED.decode(data)
-        self._refused(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
+        self._send(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
 
     def _on_measured_cf(self, data, _received_ns):
         _, _, frame_id, values = cdr.decode_wrench_stamped(data)
-        now = time.monotonic()
-        self._refused(self.bridge.ft_reading(frame_id, values, now))
-        self._publish_wrench(self.bridge.master_wrench(now))
+        self._send(self.bridge.ft_reading(frame_id, values, time.monotonic()))
 
     def _set_clutch(self, source, pressed):
         with self._lock:
             self._clutch_inputs[source] = pressed
-            self.bridge.set_clutch(any(self._clutch_inputs.values()))
-            self._publish_state()
+            self._send(self.bridge.set_clutch(any(self._clutch_inputs.values())))
 
     def _on_clutch(self, msg):
         self._set_clutch('clutch', bool(msg.data))
@@ -331,33 +250,13 @@ class TeleopNode(Node):
             return
         self._set_clutch('joy', msg.buttons[self.clutch_button] == 1)
 
-    def _enable(self, now):
-        """Enable the bridge, with base_rotation from TF first if asked; return why not."""
-        if self._tf is not None and self.bridge.state not in ('ENABLED', 'CLUTCHED'):
-            tf2_ros, buffer = self._tf
-            settings = self.bridge.settings
-            try:
-                rotation = buffer.lookup_transform(
-                    settings.arm_frame, settings.master_frame, Time()).transform.rotation
-            except tf2_ros.TransformException as error:
-                return (f'no TF from {settings.master_frame} to {settings.arm_frame} '
-                        f'({error}): not enabled')
-            refusal = self.bridge.set_base_rotation(
-                (rotation.x, rotation.y, rotation.z, rotation.w))
-            if refusal is not None:
-                return f'TF {refusal}: not enabled'
-        return self.bridge.enable(now)
-
     def _on_enable(self, request, response):
         with self._lock:
-            if request.data:
-                refusal = self._enable(time.monotonic())
-                response.success = refusal is None
-                response.message = refusal or self.bridge.describe()
-            else:
-                self.bridge.disable()
-                response.success, response.message = True, self.bridge.describe()
-            self._publish_state()
+            answer = (self.bridge.enable(time.monotonic(), self._base_rotation_from_tf)
+                      if request.data else self.bridge.disable())
+            self._send(answer.outputs)
+        response.success = answer.refusal is None
+        response.message = answer.refusal or answer.state
         self.get_logger().info(f'enable {request.data}: {response.message}')
         return response
 
@@ -374,75 +273,44 @@ class TeleopNode(Node):
         """Return this node's clock now as (sec, nanosec), for a header's stamp."""
         return divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
 
-    def _publish_command(self):
-        """Publish the arm's command: the target or held pose, or the twist toward it."""
-        if self.mode == 'pose':
-            pose = self.bridge.arm_command()
-            if pose is None:
-                return
-            values = (*pose.position, *pose.quaternion)
-        else:
-            if self.bridge.state == 'DISABLED':
-                return
-            values = self.bridge.arm_twist()
-        self.servo_pub.publish(self._servo_cdr.encode(*self._now(), values))
-
-    def _publish_wrench(self, wrench):
-        self.wrench_pub.publish(self._wrench_cdr.encode(*self._now(), wrench))
-
-    def _publish_state(self):
-        text = self.bridge.describe()
-        if text != self._published_state:
-            self._published_state = text
+    def _send(self, outputs):
+        """Publish what the bridge returned: a refusal logged, state, command, wrench, energy."""
+        if outputs.refusal is not None:
+            self.get_logger().error(outputs.refusal, throttle_duration_sec=1.0)
+        if outputs.state is not None:
+            text = outputs.state.text
             self.state_pub.publish(String(data=text))
-            if self.bridge.state == 'FAULT':
+            if outputs.state.state is OperatingState.FAULT:
                 self.get_logger().error(text)
+        if outputs.command is not None:
+            self.servo_pub.publish(self._servo_cdr.encode(*self._now(), outputs.command))
+        if outputs.wrench is not None:
+            self.wrench_pub.publish(self._wrench_cdr.encode(*self._now(), outputs.wrench))
+        if outputs.slave_energy is not None:
+            self.energy_pub.publish(self._energy_cdr.encode(*self._now(), outputs.slave_energy))
 
     def _tick(self):
-        """Apply the timeouts; while not following, hold the arm and send the master zero."""
+        """Enable at start once it can; send what the bridge's tick returns."""
         with self._lock:
             now = time.monotonic()
-            bridge = self.bridge
-            if self.enable_at_start and self._enable(now) is None:
-                self.enable_at_start = False
-                self.get_logger().info(f'enabled at start: {bridge.describe()}')
-            bridge.check(now)
-            self._publish_state()
-            if not bridge.following:
-                self._publish_command()
-                self._publish_wrench(bridge.master_wrench(now))
-            elif not bridge.settings.force_feedback:
-                self._publish_wrench(bridge.master_wrench(now))
-            port = bridge.port
-            energies = port.energy_in, port.energy_out, port.dissipated
-        self.energy_pub.publish(self._energy_cdr.encode(*self._now(), energies))
+            if self.enable_at_start:
+                answer = self.bridge.enable(now, self._base_rotation_from_tf)
+                self._send(answer.outputs)
+                if answer.refusal is None:
+                    self.enable_at_start = False
+                    self.get_logger().info(f'enabled at start: {answer.state}')
+            self._send(self.bridge.tick(now))
 
     def _publish_diagnostics(self):
         with self._lock:
-            self._publish_status()
-
-    def _publish_status(self):
-        bridge, port = self.bridge, self.bridge.port
-        level = DiagnosticStatus.ERROR if bridge.state == 'FAULT' else DiagnosticStatus.OK
-        values = {'state': bridge.state, 'reason': bridge.reason, 'mode': self.mode,
-                  'clutch': 'pressed' if bridge.clutch_pressed else 'released',
-                  'passivity': 'on' if port.enabled else 'off',
-                  'slave energy in (J)': f'{port.energy_in:.4f}',
-                  'slave energy out (J)': f'{port.energy_out:.4f}',
-                  'slave energy dissipated (J)': f'{port.dissipated:.4f}',
-                  'drift (mm)': f'{1e3 * math.hypot(*port.drift):.3f}',
-                  'input scheduler': self.scheduling.thread,
-                  'executor scheduler': self.scheduling.executor,
-                  'memory lock': self.scheduling.memory_lock}
-        link = self.pose_link.summary()
-        if link is not None:
-            values.update(link_values('master to slave', link))
-        array = DiagnosticArray(status=[DiagnosticStatus(
-            name=f'{self.get_fully_qualified_name()}: teleoperation bridge', level=level,
-            message=bridge.describe(),
-            values=[KeyValue(key=k, value=v) for k, v in values.items()])])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self.diag_pub.publish(array)
+            level, message, values = bridge_diagnostics(self.bridge, self.scheduling,
+                                                        self.pose_link.summary())
+            array = DiagnosticArray(status=[DiagnosticStatus(
+                name=f'{self.get_fully_qualified_name()}: teleoperation bridge',
+                level=DIAGNOSTIC_LEVELS[level], message=message,
+                values=[KeyValue(key=k, value=v) for k, v in values.items()])])
+            array.header.stamp = self.get_clock().now().to_msg()
+            self.diag_pub.publish(array)
 
 
 def main(args=None):

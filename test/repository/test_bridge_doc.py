@@ -3,11 +3,11 @@
 """doc/bridge.md says what the bridge and the simulated arm do: parameters, safety tests."""
 from harness import REPO
 from harness.doc_tables import expected_row, table_rows, undefined_tests
-from kraft_master_driver.nodes import slave_sim, teleop
+from kraft_master_driver.nodes import slave_sim, teleop_parameters
 import pytest
 
 PAGE = (REPO / 'doc' / 'bridge.md').read_text()
-TABLES = {'Parameters': teleop.PARAMETERS, 'The simulated arm': slave_sim.PARAMETERS}
+TABLES = {'Parameters': teleop_parameters.PARAMETERS, 'The simulated arm': slave_sim.PARAMETERS}
 ROWS = {heading: table_rows(PAGE, heading) for heading in TABLES}
 CASES = [(heading, name) for heading, parameters in TABLES.items() for name in parameters]
 

@@ -4,7 +4,8 @@
 import math
 
 from kraft_master_driver.core.rotations import quaternion_to_rotation
-from kraft_master_driver.core.teleoperation import Settings, Teleoperation
+from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
+from kraft_master_driver.core.teleoperation_settings import Settings
 import numpy as np
 import pytest
 
@@ -41,14 +42,14 @@ class Session:
             self.master_orientation = master_orientation
         if reading is not None:
             self.reading = np.asarray(reading, dtype=float)
-        refusals = [
+        refusals = [outputs.refusal for outputs in (
             self.bridge.master_pose('kraft_master_base', self.master, self.master_orientation,
                                     self.now),
             self.bridge.arm_pose('base_link', ARM_HOME if arm is None else arm,
                                  self.arm_orientation, self.now),
-            self.bridge.ft_reading('ft_sensor', self.reading, self.now)]
+            self.bridge.ft_reading('ft_sensor', self.reading, self.now))]
         assert refusals == [None] * 3
-        self.bridge.check(self.now)
+        self.bridge.tick(self.now)
 
     def follow(self, master, **inputs):
         """Feed the master pose with the arm where it was commanded; return the command."""
@@ -58,13 +59,13 @@ class Session:
 
     def enabled(self):
         """Enable; return self."""
-        assert self.bridge.enable(self.now) is None
+        assert self.bridge.enable(self.now).refusal is None
         self.feed()
         return self
 
 
 @pytest.mark.parametrize('settings, fragment', [
-    ({'orientation': 'loose'}, 'orientation'),
+    ({'orientation': 'loose'}, 'orientation'), ({'mode': 'velocity'}, 'mode'),
     ({'workspace_min': (0.0, 0.0, 1.0), 'workspace_max': (1.0, 1.0, 1.0)}, 'workspace_min'),
     ({'sensor_rotation': (0.0, 0.0)}, 'sensor_rotation'),
     ({'tool_com': (0.0, 0.1)}, 'tool_com'), ({'gravity': (0.0, 0.0, math.inf)}, 'gravity')])
@@ -88,17 +89,17 @@ def test_nothing_is_sent_to_the_arm_until_enabled():
 
 def test_enable_needs_every_input_fresh_and_the_arm_in_the_box():
     bridge = Teleoperation(Settings())
-    assert bridge.enable(1.0) == 'no fresh pose, measured_cp, measured_cf: not enabled'
+    assert bridge.enable(1.0).refusal == 'no fresh pose, measured_cp, measured_cf: not enabled'
     session = Session()
-    assert session.bridge.enable(session.now + 0.2) == (
+    assert session.bridge.enable(session.now + 0.2).refusal == (
         'no fresh pose, measured_cp, measured_cf: not enabled')
     boxed = Session(workspace_min=(0.5, -1.0, -1.0))
-    assert 'outside the workspace box' in boxed.bridge.enable(boxed.now)
+    assert 'outside the workspace box' in boxed.bridge.enable(boxed.now).refusal
     assert boxed.bridge.state == 'DISABLED'
     without_ft = Teleoperation(Settings(force_feedback=False))
     without_ft.master_pose('kraft_master_base', (0, 0, 0), IDENTITY, 1.0)
     without_ft.arm_pose('base_link', ARM_HOME, IDENTITY, 1.0)
-    assert without_ft.enable(1.0) is None
+    assert without_ft.enable(1.0).refusal is None
 
 
 @pytest.mark.parametrize('master_start', [(0.0, 0.0, 0.0), (0.25, -0.3, 0.12),
@@ -308,7 +309,7 @@ def test_a_stale_master_pose_holds_the_arm_and_a_fresh_one_registers_anew():
         session.now += DT
         bridge.arm_pose('base_link', held, IDENTITY, session.now)
         bridge.ft_reading('ft_sensor', np.zeros(6), session.now)
-        bridge.check(session.now)
+        bridge.tick(session.now)
     assert bridge.describe() == 'ENABLED: holding: pose older than master_timeout 0.1 s'
     np.testing.assert_array_equal(bridge.arm_command().position, held)
     np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
@@ -328,7 +329,7 @@ def test_a_stale_force_reading_is_a_fault_with_zero_wrench_and_the_arm_held():
         session.now += DT
         bridge.master_pose('kraft_master_base', (0.02, 0.0, 0.0), IDENTITY, session.now)
         bridge.arm_pose('base_link', measured, IDENTITY, session.now)
-        bridge.check(session.now)
+        bridge.tick(session.now)
     assert bridge.describe() == 'FAULT: measured_cf older than ft_timeout 0.05 s'
     np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
     np.testing.assert_array_equal(bridge.arm_command().position, measured)
@@ -350,14 +351,14 @@ def test_a_bad_input_is_refused_in_one_line_and_is_a_fault(topic, arguments, fra
     held = bridge.arm_command()
     method = {'pose': bridge.master_pose, 'measured_cp': bridge.arm_pose,
               'measured_cf': bridge.ft_reading}[topic]
-    refusal = method(*arguments, session.now)
+    refusal = method(*arguments, session.now).refusal
     assert refusal.startswith(f'{topic} refused: ') and fragment in refusal
     assert '\n' not in refusal
     assert bridge.describe() == f'FAULT: {refusal}'
     np.testing.assert_array_equal(bridge.arm_command().position, held.position)
     np.testing.assert_array_equal(bridge.master_wrench(session.now), np.zeros(6))
     session.feed()
-    assert bridge.enable(session.now) is None and bridge.state == 'ENABLED'
+    assert bridge.enable(session.now).refusal is None and bridge.state == 'ENABLED'
 
 
 def test_a_bad_input_before_enable_is_a_fault_that_sends_nothing():
@@ -374,7 +375,7 @@ def test_a_tracking_error_holds_the_arm_where_it_is_and_is_a_fault():
         session.follow((0.001 * step, 0.0, 0.0))
     stuck = ARM_HOME + (0.0, 0.0, -0.011)
     assert 'beyond max_tracking_error 0.01 m' in bridge.arm_pose(
-        'base_link', stuck, IDENTITY, session.now)
+        'base_link', stuck, IDENTITY, session.now).refusal
     assert bridge.state == 'FAULT'
     session.follow((0.05, 0.0, 0.0))
     np.testing.assert_array_equal(bridge.arm_command().position, stuck)
@@ -413,6 +414,102 @@ def test_a_stale_arm_pose_is_a_fault():
         session.now += DT
         bridge.master_pose('kraft_master_base', (0.0, 0.0, 0.0), IDENTITY, session.now)
         bridge.ft_reading('ft_sensor', np.zeros(6), session.now)
-        bridge.check(session.now)
+        bridge.tick(session.now)
     assert bridge.describe() == 'FAULT: measured_cp older than arm_timeout 0.05 s'
     np.testing.assert_array_equal(bridge.arm_command().position, ARM_HOME)
+
+
+# -- what each call returns ------------------------------------------------------------------
+
+def test_the_state_comes_back_once_when_it_changed():
+    bridge = Teleoperation(Settings(force_feedback=False))
+    assert bridge.first_outputs().state.text == 'DISABLED: not enabled'
+    assert bridge.master_pose('kraft_master_base', (0, 0, 0), IDENTITY, 1.0).state is None
+    assert bridge.arm_pose('base_link', ARM_HOME, IDENTITY, 1.0).state is None
+    answer = bridge.enable(1.0)
+    assert answer.state == 'ENABLED' and answer.outputs.state.text == 'ENABLED'
+    assert bridge.enable(1.0).outputs.state is None
+    clutched = bridge.set_clutch(True).state
+    assert clutched.state is OperatingState.CLUTCHED and clutched.text == 'CLUTCHED'
+    assert bridge.tick(1.0).state is None
+    assert bridge.disable().outputs.state.text == 'DISABLED: disabled'
+
+
+def test_while_following_each_pose_returns_the_command_and_each_reading_the_wrench():
+    session = Session().enabled()
+    bridge = session.bridge
+    now = session.now + DT
+    outputs = bridge.master_pose('kraft_master_base', (0.001, 0.0, 0.0), IDENTITY, now)
+    command = bridge.arm_command()
+    assert outputs.command == (*command.position, *command.quaternion)
+    assert outputs.wrench is None and outputs.refusal is None
+    reading = bridge.ft_reading('ft_sensor', (0.0, 0.0, 2.0, 0, 0, 0), now)
+    np.testing.assert_allclose(reading.wrench, [0.0, 0.0, 2.0, 0, 0, 0], atol=1e-12)
+    assert reading.command is None
+    tick = bridge.tick(now)
+    assert tick.command is None and tick.wrench is None
+    port = bridge.port
+    assert tick.slave_energy == (port.energy_in, port.energy_out, port.dissipated)
+
+
+def test_while_not_following_the_tick_holds_the_arm_and_sends_the_master_zero():
+    session = Session()
+    disabled = session.bridge.tick(session.now)
+    assert disabled.command is None
+    np.testing.assert_array_equal(disabled.wrench, np.zeros(6))
+    session.bridge.set_clutch(True)
+    session.enabled()
+    clutched = session.bridge.tick(session.now)
+    assert clutched.command == (*ARM_HOME, *IDENTITY)
+    np.testing.assert_array_equal(clutched.wrench, np.zeros(6))
+
+
+def test_without_force_feedback_the_tick_sends_the_master_zero_while_following():
+    session = Session(force_feedback=False).enabled()
+    tick = session.bridge.tick(session.now)
+    assert session.bridge.following and tick.command is None
+    np.testing.assert_array_equal(tick.wrench, np.zeros(6))
+
+
+def test_twist_mode_returns_the_twist_and_nothing_while_disabled():
+    session = Session(mode='twist')
+    assert session.bridge.tick(session.now).command is None
+    session.bridge.set_clutch(True)
+    session.enabled()
+    assert session.bridge.tick(session.now).command == (0.0,) * 6
+    session.bridge.set_clutch(False)
+    session.follow((0.0, 0.0, 0.0))
+    bridge = session.bridge
+    outputs = bridge.master_pose('kraft_master_base', (0.001, 0.0, 0.0), IDENTITY,
+                                 session.now + DT)
+    assert outputs.command == tuple(bridge.arm_twist())
+    assert outputs.command[0] == pytest.approx(10.0 * 0.001)
+
+
+def test_base_rotation_from_tf_is_taken_at_enable_only_while_the_arm_is_not_driven():
+    looked_up = []
+
+    def from_tf():
+        looked_up.append(about_z(math.pi / 2))
+        return looked_up[-1]
+    session = Session()
+    assert session.bridge.enable(session.now, from_tf).refusal is None
+    session.feed()
+    assert session.bridge.enable(session.now, from_tf).refusal is None
+    assert len(looked_up) == 1
+    for step in range(1, 11):
+        command = session.follow((0.001 * step, 0.0, 0.0))
+    np.testing.assert_allclose(command.position, ARM_HOME + (0.0, 0.01, 0.0), atol=1e-12)
+
+
+def test_enable_is_refused_without_a_base_rotation_from_tf():
+    def missing():
+        raise NoBaseRotation('no TF from kraft_master_base to base_link (no such frame)')
+    session = Session()
+    answer = session.bridge.enable(session.now, missing)
+    assert answer.refusal == ('no TF from kraft_master_base to base_link (no such frame): '
+                              'not enabled')
+    assert answer.state == 'DISABLED: not enabled'
+    assert session.bridge.enable(session.now, lambda: (0.0, 0.0, 0.0, 2.0)).refusal == (
+        'TF base_rotation: the quaternion [0.0, 0.0, 0.0, 2.0] is not of unit length: '
+        'not enabled')

@@ -1,0 +1,95 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The parameters of kraft_master_teleop: name, default, description with units, range."""
+import math
+
+from kraft_master_driver.core.teleoperation_settings import MODES, ORIENTATIONS, Settings
+from kraft_master_driver.nodes.parameters import Spec
+
+_DEFAULT = Settings()
+
+
+def _spec(name, description, **bounds):
+    """Return a Spec whose default is core.teleoperation_settings.Settings' value of `name`."""
+    default = getattr(_DEFAULT, name)
+    return Spec(list(default) if isinstance(default, tuple) else default, description, **bounds)
+
+
+PARAMETERS = {
+    'mode': _spec('mode', "'pose': publish servo_cp, the target pose; 'twist': publish "
+                  'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
+    'rate_hz': Spec(100.0, 'Rate of the timeout checks, of the hold command while not '
+                    'following, and of slave_energy (Hz).', low=1.0, high=2000.0),
+    'scale': _spec('scale', 'Arm motion per master motion (1).', low=0.001, high=100.0),
+    'orientation': Spec('follow', "'follow': the arm turns as the master does; 'fixed': it "
+                        "keeps its orientation at registration; 'ignore': not commanded (pose "
+                        'mode sends the measured one, twist mode no rotation).',
+                        choices=ORIENTATIONS),
+    'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
+                           "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
+                           'w.'),
+    'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
+                                  'rotation of master_frame in arm_frame (needs tf2_ros).'),
+    'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
+                             'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
+    'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
+                          'base_frame.'),
+    'arm_frame': _spec('arm_frame', 'frame_id of measured_cp, servo_cp and servo_cv: the '
+                       "arm's base frame."),
+    'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame.'),
+    'workspace_min': _spec('workspace_min', "Lower corner of the box the arm's target stays "
+                           'in (m, arm base frame).'),
+    'workspace_max': _spec('workspace_max', 'Upper corner of that box (m).'),
+    'max_linear_speed': _spec('max_linear_speed', "Speed limit of the arm's target (m/s).",
+                              low=0.001, high=10.0),
+    'max_angular_speed': _spec('max_angular_speed', "Angular speed limit of the arm's target "
+                               '(rad/s).', low=0.001, high=100.0),
+    'twist_gain': _spec('twist_gain', 'Twist mode: servo_cv = gain * (target - measured), '
+                        '(1/s).', low=0.001, high=1000.0),
+    'master_timeout': _spec('master_timeout', 'An older pose holds the arm (s).',
+                            low=0.001, high=10.0),
+    'arm_timeout': _spec('arm_timeout', 'An older measured_cp is a FAULT (s).',
+                         low=0.001, high=10.0),
+    'ft_timeout': _spec('ft_timeout', 'An older measured_cf is a FAULT (s).',
+                        low=0.001, high=10.0),
+    'max_tracking_error': _spec('max_tracking_error', 'measured_cp farther from the command '
+                                'is a FAULT (m).', low=0.0001, high=10.0),
+    'max_tracking_angle': _spec('max_tracking_angle', 'measured_cp turned farther from the '
+                                'command is a FAULT (rad).', low=0.0001, high=math.pi),
+    'force_feedback': _spec('force_feedback', 'Reflect measured_cf to the master; false: no '
+                            'F/T sensor, zero wrench.'),
+    'tool_mass': _spec('tool_mass', 'Mass of the tool beyond the sensor (kg).',
+                       low=0.0, high=100.0),
+    'tool_com': _spec('tool_com', "The tool's centre of mass (m, sensor frame)."),
+    'gravity': _spec('gravity', 'Gravity (m/s^2, arm base frame).'),
+    'force_scale': _spec('force_scale', 'Master force per arm force (1).', low=0.0, high=100.0),
+    'moment_scale': _spec('moment_scale', 'Master moment per arm moment (1).',
+                          low=0.0, high=100.0),
+    'force_deadband': _spec('force_deadband', 'Forces below this are not reflected (N, '
+                            'master side).', low=0.0, high=100.0),
+    'moment_deadband': _spec('moment_deadband', 'Moments below this are not reflected (N*m).',
+                             low=0.0, high=10.0),
+    'force_cutoff_hz': _spec('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
+                             'wrench (Hz); 0: none.', low=0.0, high=1000.0),
+    'max_force': _spec('max_force', 'Largest force sent to the master (N).',
+                       low=0.0, high=200.0),
+    'max_moment': _spec('max_moment', 'Largest moment sent to the master (N*m).',
+                        low=0.0, high=20.0),
+    'max_input_force': _spec('max_input_force', 'A larger measured_cf force is refused (N).',
+                             low=1.0, high=1e5),
+    'max_input_moment': _spec('max_input_moment', 'A larger measured_cf moment is refused '
+                              '(N*m).', low=0.1, high=1e4),
+    'max_input_position': _spec('max_input_position', 'A pose or measured_cp farther from its '
+                                'base is refused (m).', low=0.1, high=1000.0),
+    'passivity': _spec('passivity', "Time-domain passivity control of the arm's command, fed "
+                       'by master_energy.'),
+    'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
+                        low=0.0, high=1000.0),
+    'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
+                            'files); false: wait for the enable service.'),
+    'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
+                          low=-1, high=127),
+    'input_priority': Spec(0, 'SCHED_FIFO priority of the thread that takes the streaming '
+                           "inputs and sends servo_cp, servo_cv and wrench, the executor's "
+                           'thread one below; 0: normal scheduling.', low=0, high=98),
+}
