@@ -106,25 +106,13 @@ class PacedPeer:
         self.stop = True
 
     def raw_subscription(self, msg_type, topic):
-        from kraft_master_driver.nodes.ros_helpers import TakenByLoopThread
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        return self.node.create_subscription(
-            msg_type, topic, lambda _: None,
-            QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread())
+        from kraft_master_driver.nodes.ros_io import subscribe_raw
+        return subscribe_raw(self.node, msg_type, topic, lambda _: None, 100)
 
     def publisher(self, msg_type, topic):
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         return self.node.create_publisher(
             msg_type, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-
-    @staticmethod
-    def take_all(subscription):
-        """Yield (CDR bytes, DDS receipt time ns) of every message that came."""
-        with subscription.handle:
-            while (taken := subscription.handle.take_message(
-                    subscription.msg_type, True)) is not None:
-                yield taken[0], taken[1]['received_timestamp'] or time.time_ns()
 
     def run(self, cycle):
         """Call cycle(i) once per period until stopped."""
@@ -149,6 +137,7 @@ class PacedPeer:
 def run_master(out, capacity, rate_hz):
     """Publish pose at rate_hz (still until SIGUSR1, then moving); record the wrenches."""
     from geometry_msgs.msg import PoseStamped, WrenchStamped
+    from kraft_master_driver.nodes.ros_io import take_all_received
     peer = PacedPeer('bridge_benchmark_master', rate_hz)
     pose_pub = peer.publisher(PoseStamped, 'pose')
     wrench_sub = peer.raw_subscription(WrenchStamped, 'wrench')
@@ -175,7 +164,7 @@ def run_master(out, capacity, rate_hz):
         pose_pub.publish(encoder.encode(sec, nanosec, (x, *home[1:])))
         if step is not None:
             sent[step] = now
-        for data, received_ns in peer.take_all(wrench_sub):
+        for data, received_ns in take_all_received(wrench_sub):
             if counts[1] < capacity:
                 wrenches[counts[1]] = received_ns, cdr.decode_wrench_stamped(data)[3][0]
                 counts[1] += 1
@@ -187,6 +176,7 @@ def run_master(out, capacity, rate_hz):
 def run_arm(out, capacity, rate_hz):
     """Publish measured_cp (the newest servo_cp) and a numbered measured_cf at rate_hz."""
     from geometry_msgs.msg import PoseStamped, WrenchStamped
+    from kraft_master_driver.nodes.ros_io import take_all_received
     peer = PacedPeer('bridge_benchmark_arm', rate_hz)
     pose_pub = peer.publisher(PoseStamped, 'measured_cp')
     ft_pub = peer.publisher(WrenchStamped, 'measured_cf')
@@ -205,7 +195,7 @@ def run_arm(out, capacity, rate_hz):
     pose = [ARM_START]
 
     def cycle(i):
-        for data, received_ns in peer.take_all(servo_sub):
+        for data, received_ns in take_all_received(servo_sub):
             values = decode_pose(data)[3]
             pose[0] = values
             if received[0] < capacity:

@@ -7,8 +7,8 @@ Each cycle reads the pot frame that answers the last command, estimates the arm'
 it (joint angles, velocity, wrist pose, Jacobian), takes the inputs that came (wrenches), works
 out the torques and sends them at the cycle's deadline, and hands every publish_decimation-th
 frame to `publish`. A cycle that ends after its deadline sends at once and skips the whole
-periods it cannot catch up. On every doubt the torques are zero: no reply, or an exception in
-a cycle.
+periods it cannot catch up (core.pacing's rule). On every doubt the torques are zero: no reply,
+or an exception in a cycle.
 
 The hot path works in plain floats with its work inlined: at 1 kHz a chain of small numpy
 operations costs more than it saves (benchmarks/loop.py measures the loop).
@@ -20,6 +20,7 @@ from typing import NamedTuple
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.force_reflection import STALE
 from kraft_master_driver.core.loop_statistics import LoopStatistics
+from kraft_master_driver.core.pacing import MonotonicClock, Pacer
 import numpy as np
 
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
@@ -43,12 +44,10 @@ class Estimate(NamedTuple):
     jacobian: list
 
 
-class SystemClock:
+class SystemClock(MonotonicClock):
     """The clocks the loop runs on: monotonic time, the thread's CPU time, and sleep."""
 
-    monotonic_ns = staticmethod(time.monotonic_ns)
     thread_time_ns = staticmethod(time.thread_time_ns)
-    sleep = staticmethod(time.sleep)
 
 
 class ControlLoop:
@@ -82,7 +81,7 @@ class ControlLoop:
         self.velocity = velocity
         self.master_port = master_port
         self.log = log
-        self.period_ns = int(1e9 / rate_hz)
+        self.pacer = Pacer(int(1e9 / rate_hz), clock)
         self.take_inputs = take_inputs
         self.publish_decimation = publish_decimation
         self.priority = priority
@@ -146,14 +145,12 @@ class ControlLoop:
         while that command is on the wire, so a wire-limited link is never idle for the
         publishing.
         """
-        period_ns = self.period_ns
         clock = self.clock
         cpu = clock.thread_time_ns
-        monotonic_ns = clock.monotonic_ns
         statistics = self.statistics
         device = self.device
-        deadline = monotonic_ns()
-        statistics.record_start(deadline)
+        pacer = self.pacer
+        statistics.record_start(pacer.restart())
         sent = self._send_torques(None)
         while self._running and self.keep_running():
             try:
@@ -174,25 +171,19 @@ class ControlLoop:
                     statistics.round_trips.add(int(result.round_trip_s * 1e9))
                     estimate = self._estimate(result)
                 statistics.add_cpu(link=c1 - c0, kinematics=cpu() - c1)
-                deadline += period_ns
-                now = monotonic_ns()
-                late = now >= deadline
-                if late:
-                    # Run at once to catch up; skip whole periods that cannot be caught up.
+                missed = pacer.advance()
+                if missed is not None:  # late: run at once, the missed periods skipped
                     statistics.late += 1
-                    skipped = (now - deadline) // period_ns
-                    statistics.missed += skipped
-                    deadline += skipped * period_ns
-                    statistics.record_start(now)
+                    statistics.missed += missed
+                    statistics.record_start(pacer.now_ns)
                     sent = self._send_torques(estimate)
                 if estimate is not None and statistics.frames % self.publish_decimation == 0:
                     c2 = cpu()
                     self.publish(result, estimate)
                     statistics.published += 1
                     statistics.add_cpu(publish=cpu() - c2)
-                if not late:
-                    clock.sleep(max(0, deadline - monotonic_ns()) / 1e9)
-                    statistics.record_start(monotonic_ns())
+                if missed is None:
+                    statistics.record_start(pacer.sleep())
                     sent = self._send_torques(estimate)
             except Exception as error:  # noqa: B902 - any fault must end in zero torque
                 if not self._running or not self.keep_running():
@@ -201,8 +192,9 @@ class ControlLoop:
                 statistics.internal_errors += 1
                 self.log.error(f'cycle failed, torques zeroed: {error!r}',
                                throttle_duration_sec=1.0)
-                clock.sleep(period_ns / 1e9)  # no busy loop at real-time priority if it recurs
-                deadline = monotonic_ns()
+                # No busy loop at real-time priority if it recurs.
+                clock.sleep(pacer.period_ns / 1e9)
+                pacer.restart()
 
     def _send_torques(self, estimate):
         """Take the inputs that came, work out the torques and send them; True if sent."""

@@ -14,7 +14,6 @@ this node only moves messages.
 """
 import math
 import sys
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -22,11 +21,10 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchS
 from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
-from kraft_master_driver.nodes.ros_helpers import (
-    GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
+from kraft_master_driver.nodes.ros_io import (
+    GIL_SWITCH_INTERVAL_S, PacedThread, steady_timer, subscribe_raw, take_all)
 from kraft_master_driver.simulation.arms.panda import (
     ArmModelMissing, Gains, JOINT_NAMES, PandaArm, SensorModel, Table)
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -116,8 +114,11 @@ class ArmSimNode(Node):
         self._wrench_cdr = cdr.StampedDoublesEncoder(config['ft_frame'], 6)
         self._joints_cdr = cdr.JointStateEncoder('', JOINT_NAMES, (7, 7, 7))
         self._table_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 3)
-        self._pose_sub = self._taken_by_ticks(PoseStamped, 'servo_cp', self._on_servo_cp)
-        self._twist_sub = self._taken_by_ticks(TwistStamped, 'servo_cv', self._on_servo_cv)
+        # Taken raw by the physics thread (nodes/ros_io.py), all that came at each step.
+        self._pose_sub = subscribe_raw(self, PoseStamped, 'servo_cp', self._on_servo_cp,
+                                       TICK_QUEUE)
+        self._twist_sub = subscribe_raw(self, TwistStamped, 'servo_cv', self._on_servo_cv,
+                                        TICK_QUEUE)
         self._refusals = 0
         self._last_refusal = ''
         self._window = (time.monotonic(), self.arm.time)  # wall and simulated time
@@ -125,12 +126,12 @@ class ArmSimNode(Node):
         self._steps = 0
         self._step_seconds = 0.0  # CPU seconds spent stepping, this window
         self._dropped = 0.0  # s of simulated time skipped after stalls, in all
+        self._next_publish = 0.0  # simulated time of the next measured_* messages
         self._snapshot = (self.arm.tool_position(), self.arm.table_contact_force(), True)
         steady_timer(self, 1.0, self._publish_diagnostics)
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-        self._running = True
-        self._thread = threading.Thread(target=self._run, name='arm_sim')
-        self._thread.start()
+        self._physics = PacedThread(self, 'arm_sim', self.arm.model.opt.timestep, self._step)
+        self._physics.start()
         mass, com = self.arm.tool_mass_properties()
         position = self.arm.tool_position()
         self.get_logger().info(
@@ -139,20 +140,10 @@ class ArmSimNode(Node):
             + ', '.join(f'{v:.4f}' for v in com) + f' m in {config["ft_frame"]} (the bridge\'s '
             'tool_mass and tool_com)')
 
-    def _taken_by_ticks(self, msg_type, topic, on_message):
-        """Subscribe to `topic` raw for the physics thread; the executor never runs it."""
-        return self.create_subscription(
-            msg_type, topic, on_message,
-            QoSProfile(depth=TICK_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
-
     def _take_all(self, subscription):
         """Hand each message that came, oldest first, to the subscription's callback."""
-        with subscription.handle:
-            while (taken := subscription.handle.take_message(
-                    subscription.msg_type, True)) is not None:
-                self._refused(subscription.callback(taken[0]))
+        for data in take_all(subscription):
+            self._refused(subscription.callback(data))
 
     def _refused(self, refusal):
         if refusal is not None:
@@ -185,42 +176,32 @@ class ArmSimNode(Node):
 
     # -- the physics thread ------------------------------------------------------------
 
-    def _run(self):
-        """Step the physics on the wall clock until destroy_node() or the context's end."""
+    def _step(self, missed):
+        """
+        Step the physics for the period due and the `missed` ones, at most MAX_CATCH_UP_STEPS.
+
+        Run by the physics thread (ros_io.PacedThread) on the wall clock's 1 ms grid until
+        destroy_node() or the context's end.
+        """
         dt = self.arm.model.opt.timestep
-        start = time.monotonic()
-        steps_done = 0
-        next_publish = 0.0
-        while self._running and self.context.ok():
-            due = int((time.monotonic() - start) / dt) - steps_done
-            if due <= 0:
-                time.sleep(max(start + (steps_done + 1) * dt - time.monotonic(), 0.0))
-                continue
-            if due > MAX_CATCH_UP_STEPS:  # a stall: drop the time beyond, do not replay it
-                self._dropped += (due - MAX_CATCH_UP_STEPS) * dt
-                start += (due - MAX_CATCH_UP_STEPS) * dt
-                due = MAX_CATCH_UP_STEPS
-            try:
-                self._take_all(self._pose_sub)
-                self._take_all(self._twist_sub)
-                began = time.thread_time()
-                for _ in range(due):
-                    self.arm.step(time.monotonic())
-                self._step_seconds += time.thread_time() - began
-                self._steps += due
-                steps_done += due
-                if self.arm.time >= next_publish:
-                    next_publish = self.arm.time + self.publish_period - dt / 2.0
-                    self._publish_measured()
-            except Exception:  # noqa: B902 - publishing fails once a signal ends the context
-                if self._running and self.context.ok():
-                    raise
-                return
+        due = 1 + missed
+        if due > MAX_CATCH_UP_STEPS:  # a stall: drop the time beyond, do not replay it
+            self._dropped += (due - MAX_CATCH_UP_STEPS) * dt
+            due = MAX_CATCH_UP_STEPS
+        self._take_all(self._pose_sub)
+        self._take_all(self._twist_sub)
+        began = time.thread_time()
+        for _ in range(due):
+            self.arm.step(time.monotonic())
+        self._step_seconds += time.thread_time() - began
+        self._steps += due
+        if self.arm.time >= self._next_publish:
+            self._next_publish = self.arm.time + self.publish_period - dt / 2.0
+            self._publish_measured()
 
     def destroy_node(self):
         """Stop the physics thread, then the node."""
-        self._running = False
-        self._thread.join()
+        self._physics.stop()
         super().destroy_node()
 
     def _publish_measured(self):

@@ -26,7 +26,7 @@ from kraft_master_driver.nodes.driver_parameters import PARAMETERS, SIM_PORT
 from kraft_master_driver.nodes.driver_topics import InputTopics, StateTopics
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import check_value, declare_parameters, ParameterError
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
+from kraft_master_driver.nodes.ros_io import GIL_SWITCH_INTERVAL_S, steady_timer
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from std_srvs.srv import SetBool, Trigger

@@ -16,9 +16,9 @@ from kraft_master_driver.core import rotations
 from kraft_master_driver.core.link_quality import LinkMonitor
 from kraft_master_driver.core.rate_control import rate_command
 from kraft_master_driver.nodes import cdr
-from kraft_master_driver.nodes.ros_helpers import TakenByLoopThread
+from kraft_master_driver.nodes import ros_io
 import numpy as np
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
@@ -96,7 +96,7 @@ class StateTopics:
 
 class InputTopics:
     """
-    The wrench and slave_energy subscriptions, taken by the loop thread, never the executor.
+    The wrench and slave_energy subscriptions, taken raw by the loop thread (nodes/ros_io.py).
 
     take() hands every wrench that came to the force reflection and every slave energy to the
     master port. While more than one publisher is matched on wrench and servo_cf together (and
@@ -123,19 +123,12 @@ class InputTopics:
             self.crtk_frames = {**frames, '': frames[config['base_frame']]}
         # All that came (the values are monotone; each one's delay counts, and one the next
         # overwrote would count as lost on the link).
-        self._slave_energy_sub = node.create_subscription(
-            Vector3Stamped, 'slave_energy', self._on_slave_energy,
-            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        self._slave_energy_sub = ros_io.subscribe_raw(
+            node, Vector3Stamped, 'slave_energy', self._on_slave_energy, 10)
 
     def _subscribe_wrench(self, node, topic):
-        return node.create_subscription(
-            WrenchStamped, topic, self._on_wrench,
-            # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
+        return ros_io.subscribe_raw(node, WrenchStamped, topic, self._on_wrench, 1)
 
     @property
     def sources_refused(self):
@@ -152,29 +145,21 @@ class InputTopics:
 
     def take(self):
         """Hand every wrench and slave energy that has arrived on, oldest first."""
-        handle, servo_cf = self._wrench_sub.handle, self._servo_cf_sub
-        with handle:
-            sources = handle.get_publisher_count()
-            if servo_cf is not None:
-                with servo_cf.handle:
-                    sources += servo_cf.handle.get_publisher_count()
-            refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
-            while (taken := handle.take_message(WrenchStamped, True)) is not None:
-                if not refused:
-                    self._on_wrench(taken[0])
+        servo_cf = self._servo_cf_sub
+        sources = ros_io.publisher_count(self._wrench_sub, servo_cf)
+        refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
+        for data in ros_io.take_all(self._wrench_sub):
+            if not refused:
+                self._on_wrench(data)
         if servo_cf is not None:
-            with servo_cf.handle:
-                while (taken := servo_cf.handle.take_message(WrenchStamped, True)) is not None:
-                    if not refused:
-                        self._on_wrench(taken[0], self.crtk_frames)
+            for data in ros_io.take_all(servo_cf):
+                if not refused:
+                    self._on_wrench(data, self.crtk_frames)
         if refused:
             self.force.clear()
-        handle = self._slave_energy_sub.handle
-        with handle:
-            while (taken := handle.take_message(Vector3Stamped, True)) is not None:
-                # Its delay to when DDS received it (system clock), not to this cycle's take.
-                self._on_slave_energy(taken[0],
-                                      taken[1]['received_timestamp'] or time.time_ns())
+        # Each one's delay to when DDS received it (system clock), not to this cycle's take.
+        for data, received_ns in ros_io.take_all_received(self._slave_energy_sub):
+            self._on_slave_energy(data, received_ns)
         if sources != self.wrench_sources:
             self.wrench_sources = sources
             if refused:

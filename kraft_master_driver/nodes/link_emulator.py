@@ -31,7 +31,7 @@ from kraft_master_driver.core.delay_line import DelayLine, LinkModel
 from kraft_master_driver.nodes.node_process import run_node, try_shutdown
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
-from kraft_master_driver.nodes.ros_helpers import GIL_SWITCH_INTERVAL_S, steady_timer
+from kraft_master_driver.nodes.ros_io import GIL_SWITCH_INTERVAL_S, steady_timer
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node

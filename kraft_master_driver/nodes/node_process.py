@@ -28,9 +28,9 @@ import time
 from kraft_master_driver.core.process import (
     stop_signal_remembered, STOP_SIGNALS, stop_with_parent)
 from kraft_master_driver.nodes.parameters import ParameterError, read_params_file, usage
+from kraft_master_driver.nodes.ros_io import RCLError
 import rclpy
 from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import install_signal_handlers, SignalHandlerOptions
 import rclpy.utilities
 
@@ -90,7 +90,7 @@ def run_node(make_node, program, summary, table, args=None):
                                  f'--ros-args (see {program} --help)')
         try:
             rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-        except _rclpy.RCLError as error:
+        except RCLError as error:
             raise ParameterError(f'cannot start: {_rcl_reason(error)}') from None
         # The executor is made before rclpy's signal handlers are in (they shut the context
         # down) and with the KeyboardInterrupt held: either stopped its constructor half-way,
@@ -196,7 +196,7 @@ def try_shutdown(context=None):
     """Shut `context` (the default one if None) down unless it is already."""
     try:
         rclpy.try_shutdown(context=context)
-    except _rclpy.RCLError:
+    except RCLError:
         # rclpy's own signal handler can shut the context down between try_shutdown's
         # check and its call (a parent's SIGTERM on a loaded machine did).
         if rclpy.ok(context=context):

@@ -16,7 +16,6 @@ The arm, its servo and its environment are simulation/arms/point_mass.py (no ROS
 only moves messages.
 """
 import sys
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -26,11 +25,10 @@ from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import (
     declare_parameters, ParameterError, Spec)
-from kraft_master_driver.nodes.ros_helpers import steady_timer, TakenByLoopThread
+from kraft_master_driver.nodes.ros_io import PacedThread, steady_timer, subscribe_raw, take_all
 from kraft_master_driver.simulation.arms.point_mass import (
     ArmServo, checked_number, MAX_CATCH_UP, MODES, SlaveArm, SlaveLimits, SoftBox, Wall)
 import numpy as np
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -98,25 +96,19 @@ class SlaveSimNode(Node):
         self.wrench_pub = self.create_publisher(WrenchStamped, 'measured_cf', state_qos)
         self._pose_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 7)
         self._wrench_cdr = cdr.StampedDoublesEncoder(self.ft_frame, 6)
-        # The commands are taken raw by each tick, all that came since the last (the newest
-        # wins): the executor never wakes for them.
+        # The commands are taken raw by each tick (nodes/ros_io.py), all that came since the
+        # last (the newest wins): the executor never wakes for them.
         msg_type, topic, on_message = (
             (PoseStamped, 'servo_cp', self._on_servo_cp) if self.servo.mode == 'pose'
             else (TwistStamped, 'servo_cv', self._on_servo_cv))
-        self._command_sub = self.create_subscription(
-            msg_type, topic, on_message,
-            QoSProfile(depth=TICK_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True,
-            callback_group=TakenByLoopThread(),
-            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
+        self._command_sub = subscribe_raw(self, msg_type, topic, on_message, TICK_QUEUE)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', state_qos)
         steady_timer(self, 1.0, self._publish_diagnostics)
         self.last_tick = time.monotonic()
         # A thread of its own paces the ticks: with an executor's timer the process took about
         # twice the CPU (measured).
-        self._period = 1.0 / rate_hz
-        self._running = True
-        self._thread = threading.Thread(target=self._run, name='slave_sim')
-        self._thread.start()
+        self._ticks = PacedThread(self, 'slave_sim', 1.0 / rate_hz, self._tick)
+        self._ticks.start()
         self.get_logger().info(
             f'simulated arm in {self.servo.mode} mode at {rate_hz:g} Hz, tool at '
             f'({", ".join(f"{v:.4f}" for v in arm.position)}) m in {self.arm_frame}; wall '
@@ -124,16 +116,14 @@ class SlaveSimNode(Node):
 
     def _take_all(self, subscription):
         """Hand each command that came (CDR bytes, oldest first) on; refuse bad ones."""
-        with subscription.handle:
-            while (taken := subscription.handle.take_message(
-                    subscription.msg_type, True)) is not None:
-                try:
-                    subscription.callback(taken[0])
-                except ValueError as error:
-                    self.refused += 1
-                    self.servo.refuse()
-                    self.get_logger().error(f'{subscription.topic_name} refused, holding: '
-                                            f'{error}', throttle_duration_sec=1.0)
+        for data in take_all(subscription):
+            try:
+                subscription.callback(data)
+            except ValueError as error:
+                self.refused += 1
+                self.servo.refuse()
+                self.get_logger().error(f'{subscription.topic_name} refused, holding: {error}',
+                                        throttle_duration_sec=1.0)
 
     def _checked_frame(self, frame_id):
         if frame_id != self.arm_frame:
@@ -149,30 +139,13 @@ class SlaveSimNode(Node):
         self._checked_frame(frame_id)
         self.servo.twist_command(values[:3], values[3:], time.monotonic())
 
-    def _run(self):
-        """Tick every period until destroy_node() or the end of the ROS context."""
-        deadline = time.monotonic()
-        while self._running and self.context.ok():
-            deadline += self._period
-            delay = deadline - time.monotonic()
-            if delay > 0.0:
-                time.sleep(delay)
-            else:
-                deadline -= delay  # late: the next tick a period from now, no burst
-            try:
-                self._tick()
-            except Exception:  # noqa: B902 - publishing fails once a signal ends the context
-                if self._running and self.context.ok():
-                    raise
-                return
-
     def destroy_node(self):
         """Stop the ticks, then the node."""
-        self._running = False
-        self._thread.join()
+        self._ticks.stop()
         super().destroy_node()
 
-    def _tick(self):
+    def _tick(self, _missed):
+        """Take the commands, advance the arm by the time elapsed, publish its state."""
         self._take_all(self._command_sub)
         now = time.monotonic()
         elapsed, self.last_tick = min(now - self.last_tick, MAX_CATCH_UP), now

@@ -11,12 +11,11 @@ the F/T bias. The logic is core.teleoperation.Teleoperation: each input and each
 as one call and comes back as what to send; this node decodes, calls and publishes.
 
 The four streaming inputs (pose, master_energy, measured_cp, measured_cf) are taken raw by a
-thread of their own that waits on them alone and handles each message as it comes, and
-servo_cp, servo_cv and wrench go out as CDR bytes (nodes/cdr.py): through rclpy's typed
-messages and executor the bridge kept up with about one pose in 15 at 1 kHz
-(benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
+thread of their own that waits on them alone and handles each message as it comes
+(nodes/ros_io.py), and servo_cp, servo_cv and wrench go out as CDR bytes (nodes/cdr.py):
+through rclpy's typed messages and executor the bridge kept up with about one pose in 15 at
+1 kHz (benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
 """
-from contextlib import ExitStack
 import sys
 import threading
 import time
@@ -31,12 +30,12 @@ from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.driver_diagnostics import ERROR, OK
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError
-from kraft_master_driver.nodes.ros_helpers import (
-    GIL_SWITCH_INTERVAL_S, steady_timer, TakenByLoopThread)
+from kraft_master_driver.nodes.ros_io import (
+    GIL_SWITCH_INTERVAL_S, InputWaitSet, run_paced, steady_timer, subscribe_raw,
+    take_oldest_received)
 from kraft_master_driver.nodes.teleop_diagnostics import bridge_diagnostics
 from kraft_master_driver.nodes.teleop_parameters import PARAMETERS
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
@@ -46,8 +45,6 @@ from std_srvs.srv import SetBool, Trigger
 
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
-# The longest the input thread waits for a message before it checks whether to stop (s).
-INPUT_WAIT_S = 0.02
 DIAGNOSTIC_LEVELS = {OK: DiagnosticStatus.OK, ERROR: DiagnosticStatus.ERROR}
 
 
@@ -82,8 +79,6 @@ class TeleopNode(Node):
         self._wrench_cdr = cdr.StampedDoublesEncoder(settings.master_frame, 6)
         self._energy_cdr = cdr.StampedDoublesEncoder(settings.master_frame, 3)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        # Best effort subscriptions take reliable and best-effort publishers alike.
-        inputs = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
         # No QoS event handlers: each is work for every wake-up of the executor (with them,
         # its wait-set bookkeeping alone took about 0.3 of a core here).
         quiet = {'event_callbacks': PublisherEventCallbacks(use_default_callbacks=False)}
@@ -98,9 +93,7 @@ class TeleopNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable, **quiet)
         quiet_input = SubscriptionEventCallbacks(use_default_callbacks=False)
         self._inputs = tuple(
-            self.create_subscription(
-                msg_type, topic, handler, inputs, raw=True, callback_group=TakenByLoopThread(),
-                event_callbacks=quiet_input)
+            subscribe_raw(self, msg_type, topic, handler, 10)
             for msg_type, topic, handler in (
                 (PoseStamped, 'pose', self._on_pose),
                 (Vector3Stamped, 'master_energy', self._on_master_energy),
@@ -163,36 +156,18 @@ class TeleopNode(Node):
         """
         Wait on the streaming inputs alone; handle each message as it comes, until stopped.
 
-        The ticks (_tick, at rate_hz on the steady clock) run here too, between messages: as an
-        executor timer each woke the executor, whose wait-set bookkeeping took about 2 ms of a
-        loaded machine's CPU per wake-up (benchmarks/bridge.py --profile).
+        The ticks (_tick, at rate_hz on the steady clock) run here too, between messages
+        (ros_io.run_paced): as an executor timer each woke the executor, whose wait-set
+        bookkeeping took about 2 ms of a loaded machine's CPU per wake-up (benchmarks/bridge.py
+        --profile).
         """
         if self._input_priority:
             self.scheduling = realtime.make_real_time(
                 self._input_priority, self._executor_thread, self.get_logger().warning,
                 'input_priority', 'the input thread')
-        try:
-            with ExitStack() as in_use:
-                in_use.enter_context(self.context.handle)
-                for subscription in self._inputs:
-                    in_use.enter_context(subscription.handle)
-                wait_set = _rclpy.WaitSet(len(self._inputs), 0, 0, 0, 0, 0, self.context.handle)
-                next_tick = time.monotonic() + self._tick_period
-                while self._running:
-                    wait_set.clear_entities()
-                    for subscription in self._inputs:
-                        wait_set.add_subscription(subscription.handle)
-                    wait_s = min(next_tick - time.monotonic(), INPUT_WAIT_S)
-                    wait_set.wait(max(int(wait_s * 1e9), 0))
-                    self._take_one_each()
-                    now = time.monotonic()
-                    if now >= next_tick:
-                        self._tick()
-                        # Late (a descheduled thread): the next a period from now, no burst.
-                        next_tick = max(next_tick + self._tick_period, now)
-        except Exception:  # noqa: B902 - waiting and taking fail once a signal ends the context
-            if self._running and self.context.ok():
-                raise
+        run_paced(self._tick_period, lambda _missed: self._tick(),
+                  lambda: self._running and self.context.ok(),
+                  InputWaitSet(self.context, self._inputs), self._take_one_each)
 
     def _take_one_each(self):
         """
@@ -204,15 +179,14 @@ class TeleopNode(Node):
         """
         taken_any = False
         for subscription in self._inputs:
-            taken = subscription.handle.take_message(subscription.msg_type, True)
+            taken = take_oldest_received(subscription)
             if taken is None:
                 continue
             taken_any = True
             with self._lock:
                 try:
                     # When DDS received it (system clock, ns), not when this thread took it.
-                    subscription.callback(
-                        taken[0], taken[1]['received_timestamp'] or time.time_ns())
+                    subscription.callback(*taken)
                 except ValueError as error:
                     self.get_logger().error(f'{subscription.topic_name} ignored: {error}',
                                             throttle_duration_sec=1.0)

@@ -31,6 +31,7 @@ from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.process import STOP_SIGNALS
 from kraft_master_driver.nodes.arm_sim import PARAMETERS as MUJOCO_ARM_PARAMETERS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
+from kraft_master_driver.nodes.ros_io import take_all, take_newest
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
 from kraft_master_driver.simulation.master.model import Workspace
 import numpy as np
@@ -114,9 +115,9 @@ class Readout:
     Client nodes that take the newest message of each topic when asked, never spinning.
 
     Depth-1 subscriptions hold only the newest message, and nothing in this process wakes for
-    the 1 kHz topics: a refresh takes what is there. One node listens on the driver's domain,
-    one on the bridge's (the same unless the link emulator is between them), where it also
-    calls the bridge's `enable`.
+    the 1 kHz topics: a refresh takes what is there (nodes/ros_io.py). One node listens on the
+    driver's domain, one on the bridge's (the same unless the link emulator is between them),
+    where it also calls the bridge's `enable`.
     """
 
     def __init__(self, bridge_domain, mujoco=False):
@@ -160,12 +161,12 @@ class Readout:
     def take(self):
         """Take the newest message of each topic, and the driver's newest status."""
         for subscription in self._subscriptions:
-            with subscription.handle:
-                while (taken := subscription.handle.take_message(
-                        subscription.msg_type, False)) is not None:
-                    self.latest[subscription.topic_name] = taken[0]
-                    if subscription.topic_name == '/diagnostics':
-                        self._keep_statuses(taken[0])
+            topic = subscription.topic_name
+            if topic == '/diagnostics':  # each array: the driver's status is in some only
+                for array in take_all(subscription):
+                    self._keep_statuses(array)
+            elif (message := take_newest(subscription)) is not None:
+                self.latest[topic] = message
 
     def _keep_statuses(self, array):
         for status in array.status:

@@ -19,8 +19,8 @@ import threading
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm, REPO
 from harness.driver import AT_A_TERMINAL, next_domain_id, wait_for
+from kraft_master_driver.nodes.ros_io import subscribe_raw, take_all
 import rclpy
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
@@ -36,11 +36,9 @@ class Recorder:
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node('demo_recorder', context=self.context)
-        qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.raw = {topic: [] for topic, _ in self.TOPICS}
         self._subscriptions = [
-            (topic, msg_type, self.node.create_subscription(
-                msg_type, topic, lambda _msg: None, qos, raw=True))
+            (topic, subscribe_raw(self.node, msg_type, topic, lambda _msg: None, 5000))
             for topic, msg_type in self.TOPICS]
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._take_until_stopped)
@@ -48,10 +46,8 @@ class Recorder:
 
     def _take_until_stopped(self):
         while not self._stop.wait(0.05):
-            for topic, msg_type, subscription in self._subscriptions:
-                with subscription.handle:
-                    while (taken := subscription.handle.take_message(msg_type, True)) is not None:
-                        self.raw[topic].append(taken[0])
+            for topic, subscription in self._subscriptions:
+                self.raw[topic].extend(take_all(subscription))
 
     def messages(self, topic):
         """Return the messages taken on `topic`, oldest first."""

@@ -1,6 +1,6 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""mypy over what setup.cfg's [mypy] section names (core/, link/, bag/), strictly."""
+"""mypy over what setup.cfg's [mypy] section names (core/, link/, bag/, ros_io.py), strictly."""
 import os
 import subprocess
 import sys
