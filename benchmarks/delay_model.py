@@ -24,6 +24,7 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MasterPort, SlavePort
 from kraft_master_driver.core.velocity_filter import VelocityFilter
+from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchAdmission
 from kraft_master_driver.simulation.arms.point_mass import (
     SlaveArm, SlaveLimits, Wall)
 from kraft_master_driver.simulation.master.model import (
@@ -59,6 +60,7 @@ def run(round_trip_ms, loss, passivity, seed=0, slave=SLAVE, force_scale=1.0):
     arm = SlaveArm(slave, wall)
     arm.reset(home_position)
     reflection = ForceReflection(force_scale=force_scale, enabled=True)
+    admission = WrenchAdmission()
     velocity_filter = VelocityFilter(50.0)
     master_port, slave_port = MasterPort(), SlavePort()
     master_port.enabled = slave_port.enabled = passivity
@@ -96,7 +98,8 @@ def run(round_trip_ms, loss, passivity, seed=0, slave=SLAVE, force_scale=1.0):
             to_slave.append((t + one_way, position, master_port.energy_in))
         while to_master and to_master[0][0] <= t:
             _, reflected, energy = to_master.popleft()
-            reflection.submit(tuple(reflected) + (0.0, 0.0, 0.0), 'base', round(t * 1e9))
+            reflection.hold(admission.admit(tuple(reflected) + (0.0, 0.0, 0.0), BASE_FRAME,
+                                            0, round(t * 1e9), 0))
             master_port.credit(energy)
         out = reflection.compute((pose[0:3], pose[4:7], pose[8:11]), jacobian, round(t * 1e9),
                                  cartesian_velocity=twist, port=master_port)

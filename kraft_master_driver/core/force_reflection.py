@@ -3,65 +3,57 @@
 """
 Force reflection: from a task wrench to the five torques sent to the device.
 
-Pure logic, no ROS. The node's loop thread calls ForceReflection.compute() once per cycle; the
-ROS executor thread calls submit() for each wrench and configure() for parameter changes. Each
-hands over one immutable object in one assignment, so the hot path takes no lock.
+Pure logic, no ROS. The driver's loop thread hands ForceReflection.hold() each wrench that the
+WrenchAdmission (core/wrench_admission.py) let in or refused, and calls compute() once per
+cycle; the ROS executor thread calls configure() for parameter changes and clear() when force
+output is switched off. Each hands over one immutable object in one assignment, so the hot
+path takes no lock.
 
 Zero torque is the answer to every doubt: force output disabled, no wrench yet, a stale or
 rejected wrench, or a non-finite result all give exactly zero torques, with a state saying why.
 """
+from collections.abc import Callable, Sequence
 from functools import partial
 import math
-import numbers
 import operator
 import threading
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol, TypeVar
 
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.validation import (
-    choice, finite_real, finite_reals, flag)
+    checked_changes, choice, finite_real, finite_reals, flag)
+from kraft_master_driver.core.wrench_admission import (
+    Rejection, REJECTION_REASONS, WrenchInput, WRIST_FRAME)
 import numpy as np
+from numpy.typing import NDArray
 
-WRIST_FRAME, BASE_FRAME = 'wrist', 'base'
-FRAMES = (BASE_FRAME, WRIST_FRAME)
 COUPLINGS = ('actuator', 'joint')
 
 DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE = (
     'disabled', 'no_wrench', 'stale', 'rejected', 'active')
 STATES = (DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE)
 
-REJECTION_REASONS = (
-    'malformed', 'non_finite', 'unknown_frame', 'bad_timestamp', 'too_old', 'force_limit',
-    'moment_limit')
-
 DRIVEN_AXES = kinematics.DRIVEN_JOINTS
 MAX_WRENCH_TIMEOUT = 5.0
-MAX_WRENCH_AGE = 10.0
 DEFAULT_TORQUE_LIMITS = (2.0,) * DRIVEN_AXES
 
-
-class WrenchInput(NamedTuple):
-    """
-    One accepted task wrench.
-
-    wrench: (fx, fy, fz, mx, my, mz) in N and N*m, acting at the origin of the wrist {6};
-    frame: BASE_FRAME ({0}) or WRIST_FRAME ({6}) for the axes it is expressed in;
-    received_ns: time.monotonic_ns() at receipt; tag: an opaque id passed through;
-    expires_ns: when its stamp grows older than max_wrench_age (monotonic), None if unstamped.
-    """
-
-    wrench: tuple
-    frame: str
-    received_ns: int
-    tag: object = None
-    expires_ns: int = None
+# A matrix as an array or as a sequence of rows (the loop's plain floats), a vector likewise.
+Matrix = NDArray[np.float64] | Sequence[Sequence[float]]
+Vector = NDArray[np.float64] | Sequence[float]
+_Lists = TypeVar('_Lists', Sequence[Sequence[float]], Sequence[float])
 
 
-class Rejection(NamedTuple):
-    """The last input was rejected; it stands in place of a wrench until a valid one arrives."""
+class Port(Protocol):
+    """The master port of passivity control (core.passivity.MasterPort), as compute() uses it."""
 
-    reason: str
-    tag: object = None
+    def step(self, force: list[float], velocity: Sequence[float], now_ns: int) -> list[float]:
+        """Return the wrench (6 floats) to apply in place of `force` until the next sample."""
+
+    def scaled(self, factor: float) -> None:
+        """Note that the last wrench was applied scaled by `factor` (0..1)."""
+
+    def idle(self, now_ns: int) -> None:
+        """Note a step with no channel force (zero torque): no energy, the clock moves on."""
 
 
 class TorqueOutput(NamedTuple):
@@ -73,8 +65,8 @@ class TorqueOutput(NamedTuple):
     down to respect torque_limits; tag: the tag of the wrench used, or None.
     """
 
-    actuator: tuple
-    joint: tuple
+    actuator: tuple[float, ...]
+    joint: tuple[float, ...]
     state: str
     saturated: bool
     tag: object
@@ -85,14 +77,11 @@ class Settings(NamedTuple):
 
     enabled: bool = False
     force_scale: float = 1.0
-    torque_limits: tuple = DEFAULT_TORQUE_LIMITS
+    torque_limits: tuple[float, ...] = DEFAULT_TORQUE_LIMITS
     coupling: str = 'actuator'
     wrench_timeout: float = 0.05
-    max_wrench_age: float = 0.1
-    max_force: float = 200.0
-    max_moment: float = 20.0
-    centre_stiffness: tuple = (0.0, 0.0)
-    centre_damping: tuple = (0.0, 0.0)
+    centre_stiffness: tuple[float, ...] = (0.0, 0.0)
+    centre_damping: tuple[float, ...] = (0.0, 0.0)
 
 
 class _HotPath(NamedTuple):
@@ -100,8 +89,8 @@ class _HotPath(NamedTuple):
 
     settings: Settings
     timeout_ns: int
-    stiffness: tuple  # six gains (linear x3, angular x3), or None when all zero
-    damping: tuple
+    stiffness: tuple[float, ...] | None  # six gains (linear x3, angular x3), None if all zero
+    damping: tuple[float, ...] | None
 
 
 _ZERO_OUTPUTS = {
@@ -109,28 +98,29 @@ _ZERO_OUTPUTS = {
     for state in STATES if state != ACTIVE}
 
 
-_VALIDATORS = {
+_VALIDATORS: dict[str, Callable[[Any], object]] = {
     'enabled': partial(flag, 'enabled'),
     'force_scale': partial(finite_real, 'force_scale'),
     'torque_limits': partial(finite_reals, 'torque_limits', length=DRIVEN_AXES, lower_open=True),
     'coupling': partial(choice, 'coupling', COUPLINGS),
     'wrench_timeout': partial(finite_real, 'wrench_timeout', upper=MAX_WRENCH_TIMEOUT,
                               lower_open=True),
-    'max_wrench_age': partial(finite_real, 'max_wrench_age', upper=MAX_WRENCH_AGE,
-                              lower_open=True),
-    'max_force': partial(finite_real, 'max_force'),
-    'max_moment': partial(finite_real, 'max_moment'),
     'centre_stiffness': partial(finite_reals, 'centre_stiffness', length=2),
     'centre_damping': partial(finite_reals, 'centre_damping', length=2),
 }
 
 
-def _six_gains(linear_angular):
+def _six_gains(linear_angular: tuple[float, ...]) -> tuple[float, ...] | None:
     linear, angular = linear_angular
     return (linear,) * 3 + (angular,) * 3 if linear or angular else None
 
 
-def _setting(name):
+def _hot_path(settings: Settings) -> _HotPath:
+    return _HotPath(settings, round(settings.wrench_timeout * 1e9),
+                    _six_gains(settings.centre_stiffness), _six_gains(settings.centre_damping))
+
+
+def _setting(name: str) -> property:
     return property(lambda self: getattr(self._hot.settings, name),
                     doc=f'Current {name} (read-only; change it with configure()).')
 
@@ -143,7 +133,7 @@ class ForceReflection:
     (no motor), mapped to the actuator form (elbow motor drives th2 + th3) when coupling is
     'actuator', then scaled down as a whole vector if any axis exceeds its torque limit.
 
-    submit(), clear() and configure() may be called from any thread; compute() from one thread
+    hold(), clear() and configure() may be called from any thread; compute() from one thread
     only (it keeps the watchdog and saturation state).
     """
 
@@ -151,29 +141,26 @@ class ForceReflection:
     torque_limits = _setting('torque_limits')
     coupling = _setting('coupling')
     wrench_timeout = _setting('wrench_timeout')
-    max_wrench_age = _setting('max_wrench_age')
-    max_force = _setting('max_force')
-    max_moment = _setting('max_moment')
     centre_stiffness = _setting('centre_stiffness')
     centre_damping = _setting('centre_damping')
 
-    def __init__(self, force_scale=1.0, torque_limits=DEFAULT_TORQUE_LIMITS, coupling='actuator',
-                 wrench_timeout=0.05, max_force=200.0, max_moment=20.0,
-                 centre_stiffness=(0.0, 0.0), centre_damping=(0.0, 0.0), enabled=False,
-                 max_wrench_age=0.1):
+    def __init__(self, force_scale: float = 1.0,
+                 torque_limits: Sequence[float] = DEFAULT_TORQUE_LIMITS,
+                 coupling: str = 'actuator', wrench_timeout: float = 0.05,
+                 centre_stiffness: Sequence[float] = (0.0, 0.0),
+                 centre_damping: Sequence[float] = (0.0, 0.0), enabled: bool = False) -> None:
         """
         Validate the settings (ValueError naming the bad one); force output starts disabled.
 
         force_scale (1), torque_limits (5 values, N*m, actuator axes 1..5, > 0),
-        coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]), max_wrench_age (s, in
-        (0, 10]: the age by its stamp past which a wrench gives zero torque), max_force (N),
-        max_moment (N*m), centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad).
+        coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]),
+        centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad).
         """
         self._write_lock = threading.Lock()
-        self._hot = None
-        self._latest = None
-        self._tripped = None
-        self._expired = None
+        self._hot = _hot_path(Settings())
+        self._latest: WrenchInput | Rejection | None = None
+        self._tripped: WrenchInput | None = None
+        self._expired: WrenchInput | None = None
         self._was_saturated = False
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
         self._watchdog_trips = 0
@@ -183,104 +170,51 @@ class ForceReflection:
         self._non_finite_results = 0
         self.configure(
             enabled=enabled, force_scale=force_scale, torque_limits=torque_limits,
-            coupling=coupling, wrench_timeout=wrench_timeout, max_wrench_age=max_wrench_age,
-            max_force=max_force,
-            max_moment=max_moment, centre_stiffness=centre_stiffness,
+            coupling=coupling, wrench_timeout=wrench_timeout, centre_stiffness=centre_stiffness,
             centre_damping=centre_damping)
 
     @property
-    def settings(self):
+    def settings(self) -> Settings:
         """Return the current Settings (an immutable snapshot)."""
         return self._hot.settings
 
     @property
-    def enabled(self):
+    def enabled(self) -> bool:
         """Force output on (True) or off (False: zero torques)."""
         return self._hot.settings.enabled
 
     @enabled.setter
-    def enabled(self, value):
+    def enabled(self, value: bool) -> None:
         self.configure(enabled=value)
 
-    def configure(self, **changes):
+    def configure(self, **changes: object) -> None:
         """
         Change settings at run time: all are validated first, then applied in one assignment.
 
         Raise ValueError naming the setting on an unknown name or a bad value; then nothing
         changes.
         """
-        unknown = sorted(set(changes) - set(Settings._fields))
-        if unknown:
-            raise ValueError(
-                f'unknown setting(s) {", ".join(unknown)}; known: {", ".join(Settings._fields)}')
-        checked = {name: _VALIDATORS[name](value) for name, value in changes.items()}
+        checked = checked_changes(changes, _VALIDATORS)
         with self._write_lock:
-            settings = (self._hot.settings if self._hot else Settings())._replace(**checked)
-            self._hot = _HotPath(settings, round(settings.wrench_timeout * 1e9),
-                                 _six_gains(settings.centre_stiffness),
-                                 _six_gains(settings.centre_damping))
+            self._hot = _hot_path(self._hot.settings._replace(**checked))
 
-    def submit(self, wrench, frame, received_ns, tag=None, stamp_age_ns=None):
+    def hold(self, admitted: WrenchInput | Rejection) -> None:
         """
-        Validate and store a task wrench; return (accepted, reason).
+        Take what the WrenchAdmission made of the newest wrench: it replaces the current one.
 
-        wrench: (fx, fy, fz, mx, my, mz), N and N*m; frame: BASE_FRAME or WRIST_FRAME;
-        received_ns: time.monotonic_ns() at receipt; stamp_age_ns: its age by its stamp at
-        receipt (None if unstamped). One older than max_wrench_age is rejected, and one
-        accepted gives zero torque once it has grown older. A rejected wrench replaces the
-        current one, so torques are zero until a valid wrench arrives; reason then starts with
-        the key of `rejections` that was counted, and is '' for an accepted wrench.
+        A WrenchInput gives torque until it is stale; a Rejection gives zero torque (state
+        'rejected') until a valid wrench arrives, and is counted in `rejections`.
         """
-        key, detail, values = self._check(wrench, frame, received_ns)
-        max_age_ns = round(self._hot.settings.max_wrench_age * 1e9)
-        if key is None and stamp_age_ns is not None and stamp_age_ns > max_age_ns:
-            key, detail = 'too_old', (
-                f'its stamp is {stamp_age_ns / 1e9:.3f} s old '
-                f'> max_wrench_age = {max_age_ns / 1e9:g} s')
-        if key is None:
-            expires_ns = (None if stamp_age_ns is None
-                          else int(received_ns) + max_age_ns - int(stamp_age_ns))
-            self._latest = WrenchInput(values, frame, int(received_ns), tag, expires_ns)
-            return True, ''
-        self.reject(key, tag)
-        return False, f'{key}: {detail}'
+        self._latest = admitted
+        if isinstance(admitted, Rejection):
+            self.rejections[admitted.reason] += 1
 
-    def reject(self, key, tag=None):
-        """Reject an input for a reason the caller found (a key of `rejections`): zero torque."""
-        self._latest = Rejection(key, tag)
-        self.rejections[key] += 1
-
-    def _check(self, wrench, frame, received_ns):
-        """Return (rejection key or None, detail, the wrench as 6 floats)."""
-        try:
-            if isinstance(wrench, (str, bytes)):
-                raise TypeError
-            values = tuple(float(x) for x in wrench)
-        except (TypeError, ValueError):
-            return 'malformed', f'expected 6 numbers, got {wrench!r}', None
-        if len(values) != 6:
-            return 'malformed', f'expected 6 numbers, got {len(values)}', None
-        if not all(math.isfinite(x) for x in values):
-            return 'non_finite', f'wrench {values} is not finite', None
-        if frame not in FRAMES:
-            return 'unknown_frame', f'frame {frame!r} is not one of {", ".join(FRAMES)}', None
-        if isinstance(received_ns, bool) or not isinstance(received_ns, numbers.Integral):
-            return 'bad_timestamp', f'received_ns must be integer ns, got {received_ns!r}', None
-        settings = self._hot.settings
-        force, moment = math.hypot(*values[:3]), math.hypot(*values[3:])
-        if force > settings.max_force:
-            return 'force_limit', f'|f| = {force:g} N > max_force = {settings.max_force:g} N', None
-        if moment > settings.max_moment:
-            return ('moment_limit',
-                    f'|m| = {moment:g} N*m > max_moment = {settings.max_moment:g} N*m', None)
-        return None, '', values
-
-    def clear(self):
-        """Forget the wrench: torques are zero (state 'no_wrench') until the next submit()."""
+    def clear(self) -> None:
+        """Forget the wrench: torques are zero (state 'no_wrench') until the next hold()."""
         self._latest = None
 
     @property
-    def counters(self):
+    def counters(self) -> dict[str, int]:
         """Return a snapshot of the event counters, flat: name -> count."""
         counters = {
             'watchdog_trips': self._watchdog_trips,
@@ -292,14 +226,17 @@ class ForceReflection:
         counters.update({f'rejected_{key}': n for key, n in self.rejections.items()})
         return counters
 
-    def _idle(self, state, port=None, now_ns=0):
+    def _idle(self, state: str, port: Port | None = None, now_ns: int = 0) -> TorqueOutput:
         self._was_saturated = False
         if port is not None:
             port.idle(now_ns)
         return _ZERO_OUTPUTS[state]
 
-    def compute(self, rotation, jacobian, now_ns, pose=None, centre=None,
-                cartesian_velocity=None, port=None):
+    def compute(self, rotation: Matrix, jacobian: Matrix, now_ns: int,
+                pose: NDArray[np.float64] | None = None,
+                centre: NDArray[np.float64] | None = None,
+                cartesian_velocity: Vector | None = None,
+                port: Port | None = None) -> TorqueOutput:
         """
         Return the TorqueOutput for this cycle.
 
@@ -318,7 +255,7 @@ class ForceReflection:
             return self._idle(DISABLED, port, now_ns)
         if latest is None:
             return self._idle(NO_WRENCH, port, now_ns)
-        if type(latest) is Rejection:
+        if isinstance(latest, Rejection):
             return self._idle(REJECTED, port, now_ns)
         # A large negative age (receipt stamped in the future) is as doubtful as a large one.
         if abs(now_ns - latest.received_ns) > hot.timeout_ns:
@@ -377,16 +314,20 @@ class ForceReflection:
         return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, latest.tag)
 
 
-def _as_lists(values):
+def _as_lists(values: NDArray[np.float64] | _Lists) -> _Lists:
     """Return an array as (nested) lists of floats; lists pass through."""
-    return values.tolist() if isinstance(values, np.ndarray) else values
+    if isinstance(values, np.ndarray):
+        lists: _Lists = values.tolist()
+        return lists
+    return values
 
 
-def _rotate(rows, x, y, z):
+def _rotate(rows: Sequence[Sequence[float]], x: float, y: float, z: float) -> list[float]:
     """Return R (x, y, z) as a list, R given as three row lists."""
     return [r1 * x + r2 * y + r3 * z for r1, r2, r3 in rows]
 
 
-def _minus_product(wrench, gains, values):
+def _minus_product(wrench: Sequence[float], gains: Sequence[float],
+                   values: Sequence[float]) -> list[float]:
     """Return wrench - gains * values, elementwise over six floats."""
     return [w - k * v for w, k, v in zip(wrench, gains, values)]

@@ -1,9 +1,10 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """Checks of settings, no ROS: each returns the value, or raises ValueError naming it."""
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 import math
 import numbers
+from typing import Any
 
 import numpy as np
 
@@ -54,3 +55,13 @@ def choice(name: str, choices: Sequence[str], value: str) -> str:
     if value not in choices:
         raise ValueError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
     return value
+
+
+def checked_changes(changes: Mapping[str, object],
+                    validators: Mapping[str, Callable[[Any], object]]) -> dict[str, Any]:
+    """Return each change as its validator returns it; raise ValueError on an unknown name."""
+    unknown = sorted(set(changes) - set(validators))
+    if unknown:
+        raise ValueError(
+            f'unknown setting(s) {", ".join(unknown)}; known: {", ".join(validators)}')
+    return {name: validators[name](value) for name, value in changes.items()}

@@ -15,9 +15,10 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.core.control_loop import ControlLoop, LOOP_THREAD
-from kraft_master_driver.core.force_reflection import BASE_FRAME, ForceReflection, WRIST_FRAME
+from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.velocity_filter import VelocityFilter
+from kraft_master_driver.core.wrench_admission import BASE_FRAME, WRIST_FRAME
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import ERROR_KINDS
 from kraft_master_driver.nodes import driver_diagnostics
@@ -34,9 +35,11 @@ from std_srvs.srv import SetBool, Trigger
 DIAGNOSTIC_LEVELS = {driver_diagnostics.OK: DiagnosticStatus.OK,
                      driver_diagnostics.WARN: DiagnosticStatus.WARN,
                      driver_diagnostics.ERROR: DiagnosticStatus.ERROR}
-# Parameters settable at run time that the force reflection takes as they are.
-FORCE_SETTINGS = ('force_scale', 'wrench_timeout', 'max_wrench_age', 'max_force', 'max_moment',
-                  'torque_limits', 'centre_stiffness', 'centre_damping')
+# Parameters settable at run time that the force reflection and the wrench admission take as
+# they are.
+FORCE_SETTINGS = ('force_scale', 'wrench_timeout', 'torque_limits', 'centre_stiffness',
+                  'centre_damping')
+ADMISSION_SETTINGS = ('max_force', 'max_moment', 'max_wrench_age', 'max_stamp_skew')
 
 
 class KraftMasterNode(Node):
@@ -53,8 +56,6 @@ class KraftMasterNode(Node):
             torque_limits=tuple(self.config['torque_limits']),
             coupling=self.config['coupling'],
             wrench_timeout=self.config['wrench_timeout'],
-            max_wrench_age=self.config['max_wrench_age'],
-            max_force=self.config['max_force'], max_moment=self.config['max_moment'],
             centre_stiffness=tuple(self.config['centre_stiffness']),
             centre_damping=tuple(self.config['centre_damping']))
         self.force.enabled = self.config['force_enabled_at_start']
@@ -197,9 +198,15 @@ class KraftMasterNode(Node):
                 changes[parameter.name] = check_value(PARAMETERS, parameter.name, parameter.value)
             except ParameterError as error:
                 return SetParametersResult(successful=False, reason=str(error))
+        settings = {key: tuple(value) if isinstance(value, list) else value
+                    for key, value in changes.items()}
         try:
-            self.force.configure(**{key: tuple(value) if isinstance(value, list) else value
-                                    for key, value in changes.items() if key in FORCE_SETTINGS})
+            # check_value kept each within its range, which both take: the second call never
+            # refuses after the first has applied its changes.
+            self.force.configure(**{key: settings[key] for key in FORCE_SETTINGS
+                                    if key in settings})
+            self.inputs.admission.configure(**{key: settings[key] for key in ADMISSION_SETTINGS
+                                               if key in settings})
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
         if 'passivity' in changes:
@@ -224,18 +231,17 @@ class KraftMasterNode(Node):
     def _publish_diagnostics(self):
         device_stats = self.device.stats
         self._warn_link_errors(device_stats)
-        inputs, output = self.inputs, self.loop.output
+        admission, output = self.inputs.admission, self.loop.output
         level, message, values = driver_diagnostics.driver_diagnostics(DriverReadings(
             statistics=self.loop.statistics, scheduler=self.loop.scheduler,
             executor_scheduler=self.loop.executor_scheduler,
             memory_lock=self.loop.memory_lock, device_stats=device_stats,
             link_state=None if self.device.link_up else self.loop.link_state(),
             force=self.force, force_state=output.state if output else None,
-            wrench_sources=inputs.wrench_sources,
-            sources_refused=inputs.several_sources() if inputs.sources_refused else None,
+            wrench_sources=admission.sources, sources_refused=admission.sources_refusal(),
             calibration=self.calibration.source, port=self.config['port'],
-            master_port=self.master_port, slave_energy=inputs.slave_energy,
-            slave_link=inputs.slave_link.summary()))
+            master_port=self.master_port, slave_energy=self.inputs.slave_energy,
+            slave_link=self.inputs.slave_link.summary()))
         port = self.config['port']
         status = DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: {self.arm} Kraft Master',

@@ -15,6 +15,7 @@ from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchS
 from kraft_master_driver.core import rotations
 from kraft_master_driver.core.link_quality import LinkMonitor
 from kraft_master_driver.core.rate_control import rate_command
+from kraft_master_driver.core.wrench_admission import Rejection, WrenchAdmission
 from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes import ros_io
 import numpy as np
@@ -98,29 +99,30 @@ class InputTopics:
     """
     The wrench and slave_energy subscriptions, taken raw by the loop thread (nodes/ros_io.py).
 
-    take() hands every wrench that came to the force reflection and every slave energy to the
-    master port. While more than one publisher is matched on wrench and servo_cf together (and
-    allow_multiple_wrench_sources is false) the wrenches are dropped and the force reflection
-    holds none: zero torque. servo_cf (with crtk_names) is checked as wrench is, and also takes
-    an empty frame_id, which crtk_python_client sends, as the base frame.
+    take() decodes every wrench that came and hands what the wrench admission
+    (core/wrench_admission.py, every rule) made of it to the force reflection, and every slave
+    energy to the master port. While the admission refuses the wrenches of several sources
+    (wrench and servo_cf together) they are dropped and the force reflection holds none: zero
+    torque. servo_cf (with crtk_names) is admitted as wrench is, and also takes an empty
+    frame_id, which crtk_python_client sends, as the base frame.
     """
 
     def __init__(self, node, config, force, master_port, frames):
         """Subscribe on `node`; frames maps a wrench's frame_id to a force reflection frame."""
-        self.config = config
         self.force = force
         self.master_port = master_port
-        self.frames = frames
         self.log = node.get_logger()
         self.slave_energy = (0.0, 0.0, 0.0)
         self.slave_link = LinkMonitor()
-        self.wrench_sources = 0
-        self._wrenches_refused = False
         self._wrench_sub = self._subscribe_wrench(node, 'wrench')
         self._servo_cf_sub = None
         if config['crtk_names']:
             self._servo_cf_sub = self._subscribe_wrench(node, 'servo_cf')
-            self.crtk_frames = {**frames, '': frames[config['base_frame']]}
+        self.admission = WrenchAdmission(
+            frames, [sub.topic_name for sub in (self._wrench_sub, self._servo_cf_sub) if sub],
+            config['allow_multiple_wrench_sources'], max_force=config['max_force'],
+            max_moment=config['max_moment'], max_wrench_age=config['max_wrench_age'],
+            max_stamp_skew=config['max_stamp_skew'])
         # All that came (the values are monotone; each one's delay counts, and one the next
         # overwrote would count as lost on the link).
         self._slave_energy_sub = ros_io.subscribe_raw(
@@ -130,71 +132,44 @@ class InputTopics:
         # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
         return ros_io.subscribe_raw(node, WrenchStamped, topic, self._on_wrench, 1)
 
-    @property
-    def sources_refused(self):
-        """Whether wrenches are refused now: several publishers matched, and not allowed."""
-        return self.wrench_sources > 1 and not self.config['allow_multiple_wrench_sources']
-
-    def several_sources(self):
-        """Say why wrenches are refused while several publishers are matched."""
-        topics = self._wrench_sub.topic_name
-        if self._servo_cf_sub is not None:
-            topics += f' and {self._servo_cf_sub.topic_name}'
-        return (f'{self.wrench_sources} publishers on {topics}, only one '
-                'wrench source is allowed (allow_multiple_wrench_sources)')
-
     def take(self):
         """Hand every wrench and slave energy that has arrived on, oldest first."""
         servo_cf = self._servo_cf_sub
-        sources = ros_io.publisher_count(self._wrench_sub, servo_cf)
-        refused = sources > 1 and not self.config['allow_multiple_wrench_sources']
+        refused, sources_change = self.admission.count_sources(
+            ros_io.publisher_count(self._wrench_sub, servo_cf))
         for data in ros_io.take_all(self._wrench_sub):
             if not refused:
                 self._on_wrench(data)
         if servo_cf is not None:
             for data in ros_io.take_all(servo_cf):
                 if not refused:
-                    self._on_wrench(data, self.crtk_frames)
+                    self._on_wrench(data, empty_is_base=True)
         if refused:
             self.force.clear()
         # Each one's delay to when DDS received it (system clock), not to this cycle's take.
         for data, received_ns in ros_io.take_all_received(self._slave_energy_sub):
             self._on_slave_energy(data, received_ns)
-        if sources != self.wrench_sources:
-            self.wrench_sources = sources
-            if refused:
-                self.log.warning(f'{self.several_sources()}: torques zeroed')
-            elif self._wrenches_refused:
-                self.log.info(f'{sources} publisher(s) on wrench: wrenches accepted')
-            self._wrenches_refused = refused
+        if sources_change is None:
+            return
+        if refused:  # rclpy keeps one severity per call site: a call for each
+            self.log.warning(sources_change)
+        else:
+            self.log.info(sources_change)
 
-    def _on_wrench(self, data, frames=None):
-        """Check one wrench (CDR bytes) and hand it to the force reflection."""
-        frames = self.frames if frames is None else frames
+    def _on_wrench(self, data, empty_is_base=False):
+        """Decode one wrench (CDR bytes); hand what the admission made of it to the force."""
         try:
             sec, nanosec, frame_id, values = cdr.decode_wrench_stamped(data)
         except ValueError as error:
-            self.force.reject('malformed')
+            self.force.hold(self.admission.malformed(str(error)))
             self.log.warning(f'wrench rejected, torques zeroed: {error}',
                              throttle_duration_sec=1.0)
             return
-        frame = frames.get(frame_id)
-        tag = sec * 1_000_000_000 + nanosec
-        skew = time.time_ns() - tag
-        if tag and abs(skew) > self.config['max_stamp_skew'] * 1e9:
-            self.force.reject('bad_timestamp', tag)
-            self.log.warning(
-                f'wrench rejected, torques zeroed: its stamp is {skew / 1e9:+.3f} s off this '
-                f'clock (max_stamp_skew {self.config["max_stamp_skew"]:g} s)',
-                throttle_duration_sec=1.0)
-            return
-        accepted, reason = self.force.submit(values, frame, time.monotonic_ns(), tag,
-                                             stamp_age_ns=skew if tag else None)
-        if frame is None:
-            reason = (f'frame_id {frame_id!r} is not one of '
-                      f'{" or ".join(repr(f) for f in frames)}')
-        if not accepted:
-            self.log.warning(f'wrench rejected, torques zeroed: {reason}',
+        admitted = self.admission.admit(values, frame_id, sec * 1_000_000_000 + nanosec,
+                                        time.monotonic_ns(), time.time_ns(), empty_is_base)
+        self.force.hold(admitted)
+        if isinstance(admitted, Rejection):
+            self.log.warning(f'wrench rejected, torques zeroed: {admitted.text}',
                              throttle_duration_sec=1.0)
 
     def _on_slave_energy(self, data, received_ns):

@@ -10,7 +10,8 @@ suite's session and injections (scripts/soak.py uses them too), with wrench_sour
 wrench publisher it runs as a process. type_hashes: the message type hashes rosidl generated.
 dds_shm: Fast DDS's shared-memory files, and ending DDS processes so that they remove theirs.
 session_bags: synthetic recorded sessions, the bags the report's tests read. joints: joint
-vectors inside the limits.
+vectors inside the limits. force_reflection: an enabled force reflection, its inputs, and the
+checks of zero torque and of a bad setting, for its tests and the wrench admission's.
 reaper: a command run under a subreaper, which tells the exit of all it started.
 This module: where the repository is.
 """

@@ -15,9 +15,10 @@ import time
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.control_loop import ControlLoop, ZERO_TORQUES
-from kraft_master_driver.core.force_reflection import BASE_FRAME, ForceReflection
+from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.velocity_filter import VelocityFilter
+from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchInput
 from kraft_master_driver.link.device import CycleResult, KmcDevice
 from kraft_master_driver.link.protocol import PotFrame
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
@@ -147,7 +148,7 @@ def make_loop(device, clock=None, publish=None, force=None, take_inputs=None, **
     now_ns = clock.monotonic_ns if clock else time.monotonic_ns
     if take_inputs is None:
         def take_inputs():
-            force.submit(WRENCH, BASE_FRAME, now_ns())
+            force.hold(WrenchInput(WRENCH, BASE_FRAME, now_ns()))
     master_port = MasterPort()
     master_port.enabled = False  # the node's default: passivity off
     if clock is not None:
@@ -252,7 +253,7 @@ def test_an_exception_in_a_cycle_zeroes_the_torques_and_the_loop_goes_on(where):
 
     def take_inputs():
         maybe_fail('take_inputs')
-        force.submit(WRENCH, BASE_FRAME, clock.monotonic_ns())
+        force.hold(WrenchInput(WRENCH, BASE_FRAME, clock.monotonic_ns()))
 
     loop = make_loop(device, clock, publish=lambda result, estimate: maybe_fail('publish'),
                      force=force, take_inputs=take_inputs)
@@ -290,7 +291,8 @@ def test_the_inputs_are_taken_before_each_send_and_used_by_it():
     def take_inputs():
         events.append('take')
         moments.append(0.01 * len(moments))  # a new wrench each time
-        force.submit((0.0, 0.0, 0.0, 0.0, 0.0, moments[-1]), BASE_FRAME, clock.monotonic_ns())
+        force.hold(WrenchInput((0.0, 0.0, 0.0, 0.0, 0.0, moments[-1]), BASE_FRAME,
+                               clock.monotonic_ns()))
 
     loop = make_loop(device, clock, force=force, take_inputs=take_inputs)
     loop.run()
@@ -305,7 +307,7 @@ def test_a_wrench_that_stops_coming_zeroes_the_torques_once_stale():
     clock = FakeClock()
     device = ScriptedDevice(clock, [reply()] * 80)
     force = ForceReflection(enabled=True)
-    force.submit(WRENCH, BASE_FRAME, 0)  # only once: stale after wrench_timeout (50 ms)
+    force.hold(WrenchInput(WRENCH, BASE_FRAME, 0))  # only once: stale after wrench_timeout (50 ms)
     loop = make_loop(device, clock, force=force, take_inputs=lambda: None)
     loop.run()
     active = [not is_zero(sent) for _, sent in device.sent]
@@ -380,7 +382,7 @@ def test_on_the_simulator_an_exception_in_a_cycle_sends_zero_torques():
         takes.append(True)
         if len(takes) == 10:
             raise RuntimeError('scripted fault')
-        force.submit(WRENCH, BASE_FRAME, time.monotonic_ns())
+        force.hold(WrenchInput(WRENCH, BASE_FRAME, time.monotonic_ns()))
 
     loop, commands = run_on_simulator(30, force=force, take_inputs=take_inputs)
     inner = [counts[0] for counts in commands[1:-1]]

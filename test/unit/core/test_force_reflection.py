@@ -4,19 +4,19 @@
 import math
 import threading
 
+from harness.force_reflection import (
+    assert_bad_setting_changes_nothing, assert_zero, NO_LIMIT, pose_and_jacobian, reflection, T0,
+    WRENCH, ZERO5, ZERO6)
 from harness.joints import random_theta
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.core.force_reflection import (
-    BASE_FRAME, ForceReflection, REJECTION_REASONS, WRIST_FRAME)
+from kraft_master_driver.core.force_reflection import ForceReflection
+from kraft_master_driver.core.wrench_admission import (
+    BASE_FRAME, REJECTION_REASONS, WrenchAdmission, WrenchInput, WRIST_FRAME)
 import numpy as np
 import pytest
 
-T0 = 5_000_000_000_000  # an arbitrary time.monotonic_ns() reading
 TIMEOUT_NS = 50_000_000  # the default wrench_timeout, 0.05 s
-NO_LIMIT = (1e9,) * 5
-ZERO5, ZERO6 = (0.0,) * 5, (0.0,) * 6
-WRENCH = (3.0, -2.0, 5.0, 0.3, 0.2, -0.4)
 
 
 def random_wrench(rng):
@@ -24,32 +24,13 @@ def random_wrench(rng):
     return tuple(np.concatenate((rng.uniform(-40, 40, 3), rng.uniform(-4, 4, 3))).tolist())
 
 
-def reflection(**kwargs):
-    """Return an enabled ForceReflection, without saturation unless torque_limits is given."""
-    kwargs.setdefault('torque_limits', NO_LIMIT)
-    return ForceReflection(enabled=True, **kwargs)
-
-
-def pose_and_jacobian(theta):
-    """Return (0T6, 0R6, 0J) at theta."""
-    pose, jac = kinematics.forward_and_jacobian(theta)
-    return pose, pose[:3, :3], jac
-
-
 def compute_once(fr, wrench, frame, theta, **kwargs):
-    """Submit wrench at T0 and compute at T0."""
-    assert fr.submit(wrench, frame, T0, tag=42) == (True, '')
+    """Hold wrench, admitted at T0 (tag 42), and compute at T0."""
+    admitted = WrenchAdmission().admit(wrench, frame, 0, T0, 0)
+    assert type(admitted) is WrenchInput
+    fr.hold(admitted._replace(tag=42))
     _, rotation, jac = pose_and_jacobian(theta)
     return fr.compute(rotation, jac, T0, **kwargs)
-
-
-def assert_zero(out, state):
-    """Assert exactly zero torques with the given state."""
-    assert out.actuator == ZERO5
-    assert out.joint == ZERO6
-    assert out.state == state
-    assert out.saturated is False
-    assert out.tag is None
 
 
 @pytest.mark.parametrize('seed', range(20))
@@ -154,7 +135,7 @@ def test_saturation_events_count_entries_into_saturation():
     strong, weak = tuple(20.0 * x for x in WRENCH), tuple(1e-3 * x for x in WRENCH)
     seen = []
     for wrench in (strong, strong, weak, strong, strong, strong):
-        fr.submit(wrench, BASE_FRAME, T0)
+        fr.hold(WrenchInput(wrench, BASE_FRAME, T0))
         seen.append(fr.compute(rotation, jac, T0).saturated)
     assert seen == [True, True, False, True, True, True]
     assert fr.counters['saturation_events'] == 2
@@ -166,16 +147,16 @@ def test_disabled_no_wrench_and_cleared_give_zero_torques():
     _, rotation, jac = pose_and_jacobian(theta)
     fr = ForceReflection(torque_limits=NO_LIMIT)
     assert fr.enabled is False
-    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     assert_zero(fr.compute(rotation, jac, T0), 'disabled')
 
     fr = reflection()
     assert_zero(fr.compute(rotation, jac, T0), 'no_wrench')
-    fr.submit(WRENCH, BASE_FRAME, T0, tag=9)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0, tag=9))
     assert fr.compute(rotation, jac, T0).tag == 9
     fr.clear()
     assert_zero(fr.compute(rotation, jac, T0), 'no_wrench')
-    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     fr.enabled = False
     assert_zero(fr.compute(rotation, jac, T0), 'disabled')
     fr.enabled = True
@@ -186,7 +167,7 @@ def test_stale_wrench_gives_zero_torques_and_trips_the_watchdog_once():
     theta = random_theta(np.random.default_rng(12))
     _, rotation, jac = pose_and_jacobian(theta)
     fr = reflection()
-    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     assert fr.compute(rotation, jac, T0 + TIMEOUT_NS).state == 'active'
     for step in range(1, 50):
         assert_zero(fr.compute(rotation, jac, T0 + TIMEOUT_NS + step), 'stale')
@@ -198,7 +179,7 @@ def test_stale_wrench_gives_zero_torques_and_trips_the_watchdog_once():
     assert fr.counters['watchdog_trips'] == 1
 
     later = T0 + 10 * TIMEOUT_NS
-    fr.submit(WRENCH, BASE_FRAME, later)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, later))
     assert fr.compute(rotation, jac, later + 1).state == 'active'
     assert_zero(fr.compute(rotation, jac, later + 2 * TIMEOUT_NS), 'stale')
     assert_zero(fr.compute(rotation, jac, later + 3 * TIMEOUT_NS), 'stale')
@@ -209,9 +190,9 @@ def test_receipt_stamped_far_in_the_future_is_stale():
     theta = random_theta(np.random.default_rng(13))
     _, rotation, jac = pose_and_jacobian(theta)
     fr = reflection()
-    fr.submit(WRENCH, BASE_FRAME, T0 + 1000)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0 + 1000))
     assert fr.compute(rotation, jac, T0).state == 'active'
-    fr.submit(WRENCH, BASE_FRAME, T0 + TIMEOUT_NS + 1)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0 + TIMEOUT_NS + 1))
     assert_zero(fr.compute(rotation, jac, T0), 'stale')
 
 
@@ -219,109 +200,13 @@ def test_wrench_timeout_change_applies_at_once():
     theta = random_theta(np.random.default_rng(14))
     _, rotation, jac = pose_and_jacobian(theta)
     fr = reflection()
-    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     assert fr.compute(rotation, jac, T0 + 80_000_000).state == 'stale'
     fr.configure(wrench_timeout=0.1)
     assert fr.compute(rotation, jac, T0 + 80_000_000).state == 'active'
 
 
-MAX_AGE_NS = 100_000_000  # the default max_wrench_age, 0.1 s
-
-
-def test_wrench_older_than_max_wrench_age_by_its_stamp_is_refused():
-    theta = random_theta(np.random.default_rng(21))
-    _, rotation, jac = pose_and_jacobian(theta)
-    fr = reflection()
-    accepted, reason = fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=MAX_AGE_NS + 1)
-    assert not accepted
-    assert reason == 'too_old: its stamp is 0.100 s old > max_wrench_age = 0.1 s'
-    assert_zero(fr.compute(rotation, jac, T0), 'rejected')
-    assert fr.counters['rejected_too_old'] == 1
-    assert fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=MAX_AGE_NS) == (True, '')
-    assert fr.compute(rotation, jac, T0).state == 'active'
-
-
-def test_wrench_gives_zero_torque_once_its_stamp_is_older_than_max_wrench_age():
-    theta = random_theta(np.random.default_rng(22))
-    _, rotation, jac = pose_and_jacobian(theta)
-    fr = reflection(wrench_timeout=5.0)  # the age by its stamp, not the time since receipt
-    age = 70_000_000
-    fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=age)
-    assert fr.compute(rotation, jac, T0 + MAX_AGE_NS - age).state == 'active'
-    for step in range(1, 50):
-        assert_zero(fr.compute(rotation, jac, T0 + MAX_AGE_NS - age + step), 'stale')
-    assert fr.counters['age_expiries'] == 1
-    assert fr.counters['watchdog_trips'] == 0
-
-
-def test_unstamped_wrench_is_held_for_wrench_timeout_only():
-    theta = random_theta(np.random.default_rng(23))
-    _, rotation, jac = pose_and_jacobian(theta)
-    fr = reflection(wrench_timeout=0.5)
-    fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=None)
-    assert fr.compute(rotation, jac, T0 + 4 * MAX_AGE_NS).state == 'active'
-    assert fr.counters['age_expiries'] == 0
-
-
-def test_max_wrench_age_change_applies_to_the_next_wrench():
-    theta = random_theta(np.random.default_rng(24))
-    _, rotation, jac = pose_and_jacobian(theta)
-    fr = reflection()
-    fr.configure(max_wrench_age=0.3)
-    assert fr.submit(WRENCH, BASE_FRAME, T0, stamp_age_ns=2 * MAX_AGE_NS) == (True, '')
-    assert fr.compute(rotation, jac, T0 + 5_000_000).state == 'active'
-    assert fr.max_wrench_age == 0.3
-
-
 nan, inf = math.nan, math.inf
-
-
-@pytest.mark.parametrize('wrench, frame, received_ns, reason', [
-    ((nan, 0, 0, 0, 0, 0), BASE_FRAME, T0, 'non_finite'),
-    ((0, 0, 0, 0, 0, inf), WRIST_FRAME, T0, 'non_finite'),
-    ((0, -inf, 0, 0, 0, 0), BASE_FRAME, T0, 'non_finite'),
-    ((150.0, 150.0, 0, 0, 0, 0), BASE_FRAME, T0, 'force_limit'),
-    ((0, 0, -1e30, 0, 0, 0), BASE_FRAME, T0, 'force_limit'),
-    ((0, 0, 0, 15.0, 0, -15.0), BASE_FRAME, T0, 'moment_limit'),
-    (WRENCH, 'tool', T0, 'unknown_frame'),
-    (WRENCH, None, T0, 'unknown_frame'),
-    (WRENCH[:5], BASE_FRAME, T0, 'malformed'),
-    (WRENCH + (1.0,), BASE_FRAME, T0, 'malformed'),
-    ('123456', BASE_FRAME, T0, 'malformed'),
-    (None, BASE_FRAME, T0, 'malformed'),
-    (('a', 0, 0, 0, 0, 0), BASE_FRAME, T0, 'malformed'),
-    (np.zeros((2, 3)), BASE_FRAME, T0, 'malformed'),
-    (WRENCH, BASE_FRAME, float(T0), 'bad_timestamp'),
-    (WRENCH, BASE_FRAME, None, 'bad_timestamp'),
-])
-def test_rejected_wrench_zeroes_torques_until_a_valid_one_arrives(
-        wrench, frame, received_ns, reason):
-    theta = random_theta(np.random.default_rng(15))
-    _, rotation, jac = pose_and_jacobian(theta)
-    fr = reflection()
-    fr.submit(WRENCH, BASE_FRAME, T0, tag=1)
-    before = fr.compute(rotation, jac, T0)
-    assert before.state == 'active' and any(before.actuator)
-
-    accepted, message = fr.submit(wrench, frame, received_ns, tag=2)
-    assert not accepted and message.startswith(reason + ': ')
-    for _ in range(3):
-        assert_zero(fr.compute(rotation, jac, T0), 'rejected')
-    assert fr.rejections == {key: int(key == reason) for key in REJECTION_REASONS}
-    assert fr.counters[f'rejected_{reason}'] == 1
-
-    assert fr.submit(WRENCH, BASE_FRAME, T0, tag=3) == (True, '')
-    after = fr.compute(rotation, jac, T0)
-    assert after.actuator == before.actuator and after.state == 'active' and after.tag == 3
-
-
-def test_max_force_and_moment_changes_apply_to_later_wrenches():
-    fr = reflection()
-    assert fr.submit(WRENCH, BASE_FRAME, T0)[0]
-    fr.configure(max_force=1.0)
-    assert fr.submit(WRENCH, BASE_FRAME, T0)[1].startswith('force_limit')
-    fr.configure(max_force=10.0, max_moment=0.1)
-    assert fr.submit(WRENCH, BASE_FRAME, T0)[1].startswith('moment_limit')
 
 
 @pytest.mark.parametrize('frame, bad', [
@@ -333,7 +218,7 @@ def test_non_finite_result_gives_zero_torques(frame, bad, value):
     inputs = {'rotation': rotation.copy(), 'jacobian': jac.copy()}
     inputs[bad][2, 1] = value
     fr = reflection()
-    fr.submit(WRENCH, frame, T0)
+    fr.hold(WrenchInput(WRENCH, frame, T0))
     assert_zero(fr.compute(inputs['rotation'], inputs['jacobian'], T0), 'rejected')
     assert fr.counters['non_finite_results'] == 1
     assert fr.compute(rotation, jac, T0).state == 'active'
@@ -349,7 +234,7 @@ def test_return_to_centre_spring_pushes_back_toward_the_centre(seed):
     pose, rotation, jac = pose_and_jacobian(theta)
     stiffness = (300.0, 2.0)
     fr = reflection(coupling='joint', centre_stiffness=stiffness)
-    fr.submit(ZERO6, BASE_FRAME, T0)
+    fr.hold(WrenchInput(ZERO6, BASE_FRAME, T0))
     out = fr.compute(rotation, jac, T0, pose=pose, centre=centre)
 
     dp, w = kinematics.pose_difference(pose, centre)
@@ -360,7 +245,7 @@ def test_return_to_centre_spring_pushes_back_toward_the_centre(seed):
     for missing in ({'pose': pose}, {'centre': centre}, {}):
         assert fr.compute(rotation, jac, T0, **missing).actuator == ZERO5
     plain = reflection(coupling='joint')
-    plain.submit(ZERO6, BASE_FRAME, T0)
+    plain.hold(WrenchInput(ZERO6, BASE_FRAME, T0))
     assert plain.compute(rotation, jac, T0, pose=pose, centre=centre).actuator == ZERO5
 
 
@@ -373,7 +258,7 @@ def test_damping_opposes_velocity(seed):
     twist = jac @ theta_dot
     damping = (8.0, 0.05)
     fr = reflection(coupling='actuator', centre_damping=damping)
-    fr.submit(ZERO6, BASE_FRAME, T0)
+    fr.hold(WrenchInput(ZERO6, BASE_FRAME, T0))
     out = fr.compute(rotation, jac, T0, cartesian_velocity=twist)
 
     dissipated = damping[0] * twist[:3] @ twist[:3] + damping[1] * twist[3:] @ twist[3:]
@@ -391,7 +276,7 @@ def test_spring_and_damper_add_to_the_scaled_task_wrench():
     twist = jac @ rng.normal(size=6)
     fr = reflection(coupling='joint', force_scale=0.5, centre_stiffness=(100.0, 1.0),
                     centre_damping=(5.0, 0.02))
-    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     out = fr.compute(rotation, jac, T0, pose=pose, centre=centre, cartesian_velocity=twist)
     dp, w = kinematics.pose_difference(pose, centre)
     total = (0.5 * np.array(WRENCH) - np.concatenate((100.0 * dp, 1.0 * w))
@@ -407,23 +292,14 @@ def test_spring_and_damper_add_to_the_scaled_task_wrench():
     ('torque_limits', 3.0), ('torque_limits', (1.0, 1.0, 1.0, 1.0, -2.0)),
     ('coupling', 'both'), ('coupling', None),
     ('wrench_timeout', 0.0), ('wrench_timeout', -0.01), ('wrench_timeout', 6.0),
-    ('wrench_timeout', nan), ('max_wrench_age', 0.0), ('max_wrench_age', 11.0),
-    ('max_force', -1.0), ('max_force', nan), ('max_moment', inf), ('max_moment', None),
+    ('wrench_timeout', nan),
     ('centre_stiffness', (1.0,)), ('centre_stiffness', (-1.0, 0.0)),
     ('centre_damping', (nan, 0.0)), ('centre_damping', (0.0, 0.0, 0.0)),
     ('enabled', 'yes'), ('enabled', 1),
 ])
 def test_bad_settings_raise_naming_the_setting_and_change_nothing(name, value):
-    with pytest.raises(ValueError, match=name):
-        ForceReflection(**{name: value})
-    fr = ForceReflection()
-    before = fr.settings
-    with pytest.raises(ValueError, match=name):
-        fr.configure(**{name: value})
     valid_change = {'coupling': 'joint'} if name != 'coupling' else {'force_scale': 3.0}
-    with pytest.raises(ValueError, match=name):
-        fr.configure(**valid_change, **{name: value})
-    assert fr.settings == before
+    assert_bad_setting_changes_nothing(ForceReflection, name, value, valid_change)
 
 
 def test_configure_applies_valid_changes_and_rejects_unknown_names():
@@ -465,12 +341,12 @@ def test_submissions_and_changes_from_another_thread_never_mix_within_a_cycle():
             expected.add(compute_once(reflection(force_scale=scale), wrench, BASE_FRAME,
                                       theta).actuator)
     fr = reflection()
-    fr.submit(WRENCH, BASE_FRAME, T0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     done = threading.Event()
 
     def writer():
         for i in range(20000):
-            fr.submit((WRENCH, other)[i % 2], BASE_FRAME, T0)
+            fr.hold(WrenchInput((WRENCH, other)[i % 2], BASE_FRAME, T0))
             fr.configure(force_scale=(1.0, 2.0)[i % 3 == 0])
         done.set()
 

@@ -7,6 +7,7 @@ import random
 
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MASTER_RESERVE_J, MasterPort, SlavePort
+from kraft_master_driver.core.wrench_admission import WrenchInput
 import numpy as np
 import pytest
 
@@ -151,7 +152,7 @@ def test_force_reflection_books_what_is_sent_after_the_torque_limits():
     port.enabled = False
     jacobian = np.eye(6)
     reflection = ForceReflection(torque_limits=(1.0,) * 5, enabled=True)
-    reflection.submit((-4.0, 0, 0, 0, 0, 0), 'base', 0)
+    reflection.hold(WrenchInput((-4.0, 0, 0, 0, 0, 0), 'base', 0))
     out = reflection.compute(np.eye(3), jacobian, MS, cartesian_velocity=[1.0, 0, 0, 0, 0, 0],
                              port=port)
     port.moved([0.001, 0, 0, 0, 0, 0])
@@ -167,7 +168,7 @@ def test_force_reflection_books_what_is_sent_after_the_torque_limits():
 def test_force_reflection_with_passivity_limits_the_felt_force():
     port = MasterPort()  # on, and no credit from the slave yet
     reflection = ForceReflection(torque_limits=(100.0,) * 5, enabled=True)
-    reflection.submit((5.0, 0, 0, 0, 0, 0), 'base', 0)
+    reflection.hold(WrenchInput((5.0, 0, 0, 0, 0, 0), 'base', 0))
     velocity = [0.1, 0, 0, 0, 0, 0]
     reflection.compute(np.eye(3), np.eye(6), 0, cartesian_velocity=velocity, port=port)
     out = reflection.compute(np.eye(3), np.eye(6), MS, cartesian_velocity=velocity, port=port)
