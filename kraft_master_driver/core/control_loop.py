@@ -13,15 +13,20 @@ or an exception in a cycle.
 The hot path works in plain floats with its work inlined: at 1 kHz a chain of small numpy
 operations costs more than it saves (benchmarks/loop.py measures the loop).
 """
+from collections.abc import Callable, Iterable, Mapping, Sequence
 import operator
 import time
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 from kraft_master_driver.core import kinematics, realtime
-from kraft_master_driver.core.force_reflection import STALE
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.force_reflection import ForceReflection, STALE, TorqueOutput
 from kraft_master_driver.core.loop_statistics import LoopStatistics
 from kraft_master_driver.core.pacing import MonotonicClock, Pacer
+from kraft_master_driver.core.passivity import MasterPort
+from kraft_master_driver.core.velocity_filter import VelocityFilter
 import numpy as np
+from numpy.typing import NDArray
 
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 # The name of the thread the driver runs the loop in, in ps -L and top as in Python
@@ -37,11 +42,70 @@ class Estimate(NamedTuple):
     the Jacobian (6 rows of 6).
     """
 
-    theta: list
-    velocity: list
-    pose: tuple
-    rotation: tuple
-    jacobian: list
+    theta: list[float]
+    velocity: list[float]
+    pose: tuple[float, ...]
+    rotation: tuple[tuple[float, ...], ...]
+    jacobian: list[tuple[float, ...]]
+
+
+class PotFrame(Protocol):
+    """The part of a device's pot frame the loop reads."""
+
+    @property
+    def pots(self) -> Sequence[int]:
+        """Return the six pot counts."""
+
+
+class Reply(Protocol):
+    """The part of a device cycle's result the loop reads (link.device.CycleResult)."""
+
+    @property
+    def frame(self) -> PotFrame:
+        """Return the pot frame that answered the command."""
+
+    @property
+    def round_trip_s(self) -> float:
+        """Seconds from the command's send to its reply."""
+
+    @property
+    def receive_ns(self) -> int:
+        """When the reply came (monotonic ns)."""
+
+
+class Device(Protocol):
+    """What the loop asks of a device (link.device.KmcDevice)."""
+
+    link_up: bool
+    last_error: str
+    port: str
+    reply_timeout: float
+
+    @property
+    def stats(self) -> Mapping[str, int]:
+        """Return the link's counters."""
+
+    def send(self, torques_nm: Iterable[float]) -> bool:
+        """Send five torques (N*m); return whether they went out."""
+
+    def receive(self) -> Any:
+        """Return the reply to the last command (a Reply), or None."""
+
+    def close(self) -> None:
+        """Send zero torque and close the port."""
+
+
+class Log(Protocol):
+    """The loop's logger: rclpy's, or a stand-in."""
+
+    def info(self, message: str, throttle_duration_sec: float = ...) -> object:
+        """Log at info level."""
+
+    def warning(self, message: str, throttle_duration_sec: float = ...) -> object:
+        """Log at warning level."""
+
+    def error(self, message: str, throttle_duration_sec: float = ...) -> object:
+        """Log at error level."""
 
 
 class SystemClock(MonotonicClock):
@@ -67,10 +131,14 @@ class ControlLoop:
     centre (a 4x4 0T6 array, or None) and publish_decimation may be set from other threads.
     """
 
-    def __init__(self, device, force, publish, *, calibration, arm, lengths, velocity,
-                 master_port, log, rate_hz, take_inputs=lambda: None, publish_decimation=1,
-                 priority=0, executor_thread=None, clock=SystemClock,
-                 keep_running=lambda: True):
+    def __init__(self, device: Device, force: ForceReflection,
+                 publish: Callable[[Any, Estimate], None], *, calibration: ArmCalibration,
+                 arm: str, lengths: kinematics.LinkLengths | None, velocity: VelocityFilter,
+                 master_port: MasterPort, log: Log, rate_hz: float,
+                 take_inputs: Callable[[], None] = lambda: None, publish_decimation: int = 1,
+                 priority: int = 0, executor_thread: int | None = None,
+                 clock: type[SystemClock] = SystemClock,
+                 keep_running: Callable[[], bool] = lambda: True) -> None:
         """Wire the parts together; nothing runs until run()."""
         self.device = device
         self.force = force
@@ -92,36 +160,38 @@ class ControlLoop:
         self.scheduler = 'normal'
         self.executor_scheduler = 'normal'
         self.memory_lock = 'not locked (loop_priority 0)'
-        self.centre = None
-        self.output = None  # the TorqueOutput of the last send, None without an estimate
-        self.pose_entries = None  # 0T6 of the newest frame, 16 floats row by row
-        self.cartesian_velocity = None
-        self._theta = None  # joint angles of the last frame, for the master port's work
+        self.centre: NDArray[np.float64] | None = None
+        # The TorqueOutput of the last send, None without an estimate.
+        self.output: TorqueOutput | None = None
+        self.pose_entries: tuple[float, ...] | None = None  # 0T6 of the newest frame, by row
+        self.cartesian_velocity: list[float] | None = None
+        # Joint angles of the last frame, for the master port's work.
+        self._theta: list[float] | None = None
         self._running = True
-        self._last_force_state = None
+        self._last_force_state: str | None = None
         self._replies_missing = 0
         # Failed opens at which a down link is reported next; a link down from the start is
         # reported by the owner as it starts the loop.
         self._link_report_at = 0 if device.link_up else 2
         self._failed_opens_when_up = 0
 
-    def stop(self):
+    def stop(self) -> None:
         """Make run() return after the cycle under way."""
         self._running = False
 
-    def pose(self):
+    def pose(self) -> NDArray[np.float64] | None:
         """Return the newest wrist pose 0T6 as a new 4x4 array, None before the first frame."""
         entries = self.pose_entries
         return None if entries is None else np.array(entries).reshape(4, 4)
 
-    def link_state(self):
+    def link_state(self) -> str:
         """Return what the loop waits for and why while the link is down."""
         reason = self.device.last_error.removeprefix(f'{self.device.port}: ')
         if self.statistics.frames:
             return f'link down: {reason}; reconnecting'
         return f'waiting for the device: {reason}'
 
-    def run(self):
+    def run(self) -> None:
         """Run the loop at its priority; however it ends, zero the torques and close."""
         self._raise_priority()
         try:
@@ -129,7 +199,7 @@ class ControlLoop:
         finally:
             self.device.close()
 
-    def _raise_priority(self):
+    def _raise_priority(self) -> None:
         """Give this thread real-time priority and lock memory if asked and allowed; say so."""
         if not self.priority:
             return
@@ -137,7 +207,7 @@ class ControlLoop:
                                           'loop_priority', 'the loop')
         self.scheduler, self.executor_scheduler, self.memory_lock = granted
 
-    def _cycle_until_stopped(self):
+    def _cycle_until_stopped(self) -> None:
         """
         Pace the device cycles: command out at each deadline, reply in, state published.
 
@@ -196,7 +266,7 @@ class ControlLoop:
                 clock.sleep(pacer.period_ns / 1e9)
                 pacer.restart()
 
-    def _send_torques(self, estimate):
+    def _send_torques(self, estimate: Estimate | None) -> bool:
         """Take the inputs that came, work out the torques and send them; True if sent."""
         cpu = self.clock.thread_time_ns
         c0 = cpu()
@@ -221,13 +291,13 @@ class ControlLoop:
         self.statistics.add_cpu(kinematics=c1 - c0, link=cpu() - c1)
         return sent
 
-    def _estimate(self, result):
+    def _estimate(self, result: Reply) -> Estimate:
         """Joint angles, velocity, wrist pose and Jacobian of one pot frame, in floats."""
         theta = self.calibration.frame_to_joints(result.frame.pots)
-        pose, jacobian = kinematics.forward_and_jacobian_entries(theta, self.arm, self.lengths)
+        pose, entries = kinematics.forward_and_jacobian_entries(theta, self.arm, self.lengths)
         previous, self._theta = self._theta, theta
         velocity = self.velocity.update(theta, result.receive_ns)
-        jacobian = [jacobian[row:row + 6] for row in range(0, 36, 6)]
+        jacobian = [entries[row:row + 6] for row in range(0, 36, 6)]
         self.cartesian_velocity = [sum(map(operator.mul, row, velocity)) for row in jacobian]
         if previous is not None:
             step = [now - before for now, before in zip(theta, previous)]
@@ -236,7 +306,7 @@ class ControlLoop:
         self.statistics.frames += 1
         return Estimate(theta, velocity, pose, (pose[0:3], pose[4:7], pose[8:11]), jacobian)
 
-    def _warn_no_reply(self):
+    def _warn_no_reply(self) -> None:
         """Say why this cycle got no pot frame; its torques, and the next cycle's, are zero."""
         self._replies_missing += 1
         device = self.device

@@ -46,7 +46,8 @@ _Lists = TypeVar('_Lists', Sequence[Sequence[float]], Sequence[float])
 class Port(Protocol):
     """The master port of passivity control (core.passivity.MasterPort), as compute() uses it."""
 
-    def step(self, force: list[float], velocity: Sequence[float], now_ns: int) -> list[float]:
+    def step(self, force: Sequence[float], velocity: Sequence[float],
+             now_ns: int) -> Sequence[float]:
         """Return the wrench (6 floats) to apply in place of `force` until the next sample."""
 
     def scaled(self, factor: float) -> None:
@@ -271,6 +272,7 @@ class ForceReflection:
 
         scale = settings.force_scale
         fx, fy, fz, mx, my, mz = latest.wrench
+        wrench: Sequence[float]
         if latest.frame == WRIST_FRAME:
             rows = _as_lists(rotation)
             wrench = _rotate(rows, fx, fy, fz) + _rotate(rows, mx, my, mz)
