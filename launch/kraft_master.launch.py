@@ -14,6 +14,12 @@ carry its prefixed frame_id. With rsp:=true a robot_state_publisher per arm publ
 URDF links on TF from its joint_states. With crtk:=true each driver also answers under CRTK's
 names (measured_js, measured_cp, servo_cf; doc/ros-interface.md). Everything the launch needs
 (parameter files, robot_state_publisher) is checked before any process starts.
+
+The launch files share one vocabulary of arguments, each declared once: this file declares the
+driver's, teleop.launch.py adds the bridge's and the arm's, and each file takes those of ARGUMENTS
+(`ros2 launch ... --show-args` describes them). An argument given on the command line that a
+file does not take stops the launch with one line (launch itself would ignore it), and a file
+includes another with that file's arguments only (scoped_include).
 """
 import os
 
@@ -23,13 +29,19 @@ from kraft_master_driver.core.calibration import ArmCalibration, CalibrationErro
 from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names, package_file_name
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import (
+    DeclareLaunchArgument, GroupAction, IncludeLaunchDescription, OpaqueFunction)
+from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 PACKAGE = 'kraft_master_driver'
 ARM_SETS = {'right': ('right',), 'left': ('left',), 'both': ('right', 'left')}
 BOOLEANS = ('true', 'false')
+ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
+             'force_enabled', 'rate_command', 'crtk', 'sim_operator', 'rsp')
+# ros2 launch's own options (--launch-prefix), which it hands over as launch arguments.
+LAUNCH_OPTIONS = ('launch-prefix', 'launch-prefix-filter')
 
 
 class LaunchCheckError(RuntimeError):
@@ -59,6 +71,89 @@ def check_params_file(arm, path):
             f'{arm}_params_file: {path} calibrates the {calibration.arm} arm, not the {arm} arm')
 
 
+def check_given(context, file_name, names, refused):
+    """
+    Raise LaunchCheckError if the command line gave `file_name` an argument not in `names`.
+
+    Only what the command line gave and reached this file's launch configurations counts: an
+    included file sees only what its includer passes it (scoped_include). `refused`
+    ({name: reason}) says why a name is not taken.
+    """
+    given = {argument.split(':=', 1)[0] for argument in context.argv}
+    unknown = sorted(given & set(context.launch_configurations)
+                     - set(names) - set(LAUNCH_OPTIONS))
+    if unknown:
+        reasons = ''.join(f' ({refused[name]})' for name in unknown if name in refused)
+        raise LaunchCheckError(
+            f"{file_name} takes no argument {', '.join(unknown)}{reasons}; it takes "
+            f"{', '.join(names)}")
+
+
+def checked_launch(file_name, declarations, actions, refused=None):
+    """
+    Return the launch description of `file_name`: its `declarations`, then its actions.
+
+    `declarations`: {name: DeclareLaunchArgument}. The actions, `actions(value)` with
+    value(name) the argument's value, are made once the arguments given are checked
+    (check_given, `refused` its reasons).
+    """
+    def checked_actions(context):
+        check_given(context, file_name, list(declarations), refused or {})
+        return actions(lambda name: LaunchConfiguration(name).perform(context))
+
+    return LaunchDescription([*declarations.values(), OpaqueFunction(function=checked_actions)])
+
+
+def scoped_include(file_name, arguments):
+    """
+    Include the launch file `file_name` of this directory with `arguments` ({name: value}).
+
+    It gets those and ros2 launch's own options, and nothing else of the includer's launch
+    configuration; what it sets stays in it.
+    """
+    path = os.path.join(os.path.dirname(__file__), file_name)
+    return GroupAction(
+        [IncludeLaunchDescription(PythonLaunchDescriptionSource(path),
+                                  launch_arguments=arguments.items())],
+        scoped=True, forwarding=False,
+        launch_configurations={name: LaunchConfiguration(name, default='')
+                               for name in LAUNCH_OPTIONS})
+
+
+def declare(defaults, name, description, choices=None):
+    """Return the launch argument `name`, its default defaults[name], its choices as a list."""
+    return DeclareLaunchArgument(name, default_value=defaults[name], description=description,
+                                 choices=None if choices is None else list(choices))
+
+
+def arguments(**defaults):
+    """Return the driver's launch arguments by name, with `defaults` ({name: value}) for theirs."""
+    config = os.path.join(get_package_share_directory(PACKAGE), 'config')
+    values = {'arms': 'right', 'right_port': '/dev/ttyUSB0', 'left_port': '/dev/ttyUSB1',
+              'right_params_file': os.path.join(config, 'right_arm.yaml'),
+              'left_params_file': os.path.join(config, 'left_arm.yaml'),
+              'force_enabled': 'false', 'rate_command': 'false', 'crtk': 'false',
+              'sim_operator': 'hold', 'rsp': 'false', **defaults}
+    return {argument.name: argument for argument in (
+        declare(values, 'arms', 'Which arms to run: right, left or both.', ARM_SETS),
+        declare(values, 'right_port', 'Serial port of the right arm ("sim": simulated).'),
+        declare(values, 'left_port', 'Serial port of the left arm ("sim": simulated).'),
+        declare(values, 'right_params_file', 'Parameter file of the right arm, such as one '
+                                             'kraft_master_calibrate wrote.'),
+        declare(values, 'left_params_file', 'Parameter file of the left arm, such as one '
+                                            'kraft_master_calibrate wrote.'),
+        declare(values, 'force_enabled', "The driver's force output enabled at start-up.",
+                BOOLEANS),
+        declare(values, 'rate_command', 'Publish rate_command (after a set_center call).',
+                BOOLEANS),
+        declare(values, 'crtk', 'Also answer under CRTK names: measured_js, measured_cp, '
+                                'servo_cf.', BOOLEANS),
+        declare(values, 'sim_operator', 'What the simulated operator hand does, with port '
+                                        '"sim".', OPERATORS),
+        declare(values, 'rsp', 'Also run robot_state_publisher with the URDF.', BOOLEANS),
+    )}
+
+
 def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command, rsp,
               crtk=False):
     """Return the driver of `arm` and, if `rsp`, its robot_state_publisher."""
@@ -80,10 +175,7 @@ def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command,
     return nodes
 
 
-def _nodes(context):
-    def value(name):
-        return LaunchConfiguration(name).perform(context)
-
+def _nodes(value):
     arms, rsp = ARM_SETS[value('arms')], value('rsp') == 'true'
     if rsp:
         check_package('robot_state_publisher', 'rsp:=true')
@@ -100,32 +192,4 @@ def _nodes(context):
 
 def generate_launch_description():
     """Declare the arguments; the nodes are made once their values are known and checked."""
-    config = os.path.join(get_package_share_directory(PACKAGE), 'config')
-    return LaunchDescription([
-        DeclareLaunchArgument('arms', default_value='right', choices=list(ARM_SETS),
-                              description='Which arms to run: right, left or both.'),
-        DeclareLaunchArgument('right_port', default_value='/dev/ttyUSB0',
-                              description='Serial port of the right arm ("sim": simulated).'),
-        DeclareLaunchArgument('left_port', default_value='/dev/ttyUSB1',
-                              description='Serial port of the left arm ("sim": simulated).'),
-        DeclareLaunchArgument('right_params_file',
-                              default_value=os.path.join(config, 'right_arm.yaml'),
-                              description='Parameter file of the right arm, such as one '
-                                          'kraft_master_calibrate wrote.'),
-        DeclareLaunchArgument('left_params_file',
-                              default_value=os.path.join(config, 'left_arm.yaml'),
-                              description='Parameter file of the left arm, such as one '
-                                          'kraft_master_calibrate wrote.'),
-        DeclareLaunchArgument('rsp', default_value='false', choices=BOOLEANS,
-                              description='Also run robot_state_publisher with the URDF.'),
-        DeclareLaunchArgument('force_enabled', default_value='false', choices=BOOLEANS,
-                              description='Force output enabled at start-up.'),
-        DeclareLaunchArgument('rate_command', default_value='false', choices=BOOLEANS,
-                              description='Publish rate_command (after a set_center call).'),
-        DeclareLaunchArgument('crtk', default_value='false', choices=BOOLEANS,
-                              description='Also answer under CRTK names: measured_js, '
-                                          'measured_cp, servo_cf.'),
-        DeclareLaunchArgument('sim_operator', default_value='hold', choices=list(OPERATORS),
-                              description='Simulated operator hand, with port "sim".'),
-        OpaqueFunction(function=_nodes),
-    ])
+    return checked_launch('kraft_master.launch.py', arguments(), _nodes)

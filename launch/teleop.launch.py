@@ -4,34 +4,52 @@
 Teleoperation: per arm the Kraft Master's driver, the bridge and a simulated arm behind it.
 
     ros2 launch kraft_master_driver teleop.launch.py arms:=both right_port:=sim left_port:=sim
+    ros2 launch kraft_master_driver teleop.launch.py right_port:=sim arm_model:=panda
 
 For each arm (right, left or both), in the arm's namespace: the driver (kraft_master.launch.py,
-with its arguments), the bridge kraft_master_teleop on the driver's topics and frames, and the
-simulated arm (ARM below) on the bridge's arm-side topics (servo_cp or servo_cv in,
-measured_cp and measured_cf out), in frames that carry the arm as prefix so that two pairs
-share one TF tree. With enable:=true the bridge enables itself once the master's pose and the
-arm's pose and force reading are fresh (the arm is simulated: nothing real moves); else call
-/<arm>/enable. The driver's checks run before any process starts.
+given its arguments), the bridge kraft_master_teleop on the driver's topics and frames, and the
+simulated arm that arm_model names (ARM_MODELS: the point mass, or the Franka Panda in MuJoCo
+with the bridge settings of kraft_master_demo) on the bridge's arm-side topics (servo_cp or
+servo_cv in, measured_cp and measured_cf out), in frames that carry the arm as prefix so that
+two pairs share one TF tree. With enable:=true the bridge enables itself once the master's pose
+and the arm's pose and force reading are fresh (the arm is simulated: nothing real moves); else
+call /<arm>/enable. The driver's checks run before any process starts. crtk is not taken: the
+driver's CRTK topics would be the simulated arm's, in the same namespace.
 """
 import os
 
-from ament_index_python.packages import get_package_share_directory
-from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, OpaqueFunction
-from launch.launch_description_sources import PythonLaunchDescriptionSource
-from launch.substitutions import LaunchConfiguration
+from launch.launch_description_sources import load_python_launch_file_as_module
 from launch_ros.actions import Node
 
-PACKAGE = 'kraft_master_driver'
-ARM = 'kraft_master_slave_sim'  # the simulated arm: any node speaking the arm-side topics
-ARM_SETS = {'right': ('right',), 'left': ('left',), 'both': ('right', 'left')}
-BOOLEANS = ('true', 'false')
+DRIVER = load_python_launch_file_as_module(
+    os.path.join(os.path.dirname(__file__), 'kraft_master.launch.py'))
+PACKAGE = DRIVER.PACKAGE
+# The simulated arms: any node speaking the arm-side topics can stand here.
+ARM_MODELS = {'point_mass': 'kraft_master_slave_sim', 'panda': 'kraft_master_arm_sim'}
 MODES = ('pose', 'twist')
-# Passed on to kraft_master.launch.py as they are.
-DRIVER_ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
-                    'rsp', 'force_enabled', 'sim_operator')
+ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
+             'arm_model', 'mode', 'enable', 'force_enabled', 'rate_command', 'sim_operator',
+             'rsp')
+REFUSED = {'crtk': "the driver's CRTK topics measured_cp and measured_js would be the simulated "
+                   "arm's, which the bridge reads; kraft_master.launch.py takes it"}
+
+
+def arguments(**defaults):
+    """Return the launch arguments by name, with `defaults` ({name: value}) for theirs."""
+    values = {'arm_model': 'point_mass', 'mode': 'pose', 'enable': 'true',
+              'force_enabled': 'true', **defaults}
+    declared = DRIVER.arguments(**{name: value for name, value in values.items()
+                                   if name in DRIVER.ARGUMENTS})
+    declared.update((argument.name, argument) for argument in (
+        DRIVER.declare(values, 'arm_model', 'The simulated arm: a point mass meeting a wall and '
+                       "a box, or the Franka Panda in MuJoCo over a table (with the demo's "
+                       'bridge settings).', ARM_MODELS),
+        DRIVER.declare(values, 'mode', 'The bridge sends servo_cp (pose) or servo_cv (twist), '
+                       'and the simulated arm takes it.', MODES),
+        DRIVER.declare(values, 'enable', 'The bridge enables itself once its inputs are fresh; '
+                       'false: call the enable service.', DRIVER.BOOLEANS)))
+    return {name: declared[name] for name in ARGUMENTS}
 
 
 def arm_frames(arm):
@@ -39,59 +57,38 @@ def arm_frames(arm):
     return {'arm_frame': f'{arm}_sim_arm_base', 'ft_frame': f'{arm}_sim_arm_ft_sensor'}
 
 
-def pair_nodes(arm, mode, enable):
+def bridge_settings(arm_model):
+    """Return the bridge's parameters that `arm_model` needs."""
+    if arm_model == 'panda':
+        # MuJoCo and the demo's settings only where the Panda is asked for.
+        from kraft_master_driver.tools.demo import MUJOCO_BRIDGE
+        return MUJOCO_BRIDGE
+    # The point mass's wall holds it short of its command: no tracking fault for that.
+    return {'max_tracking_error': 1.0}
+
+
+def pair_nodes(arm, mode, enable, arm_model):
     """Return the bridge and the simulated arm of `arm`, in its namespace."""
     frames = arm_frames(arm)
+    # The point mass takes the one command of its mode, the Panda either.
+    arm_parameters = {'mode': mode, **frames} if arm_model == 'point_mass' else frames
     return [
-        # The simulated arm's wall holds it short of its command: no tracking fault for that.
         Node(package=PACKAGE, executable='kraft_master_teleop', namespace=arm, output='screen',
-             parameters=[{'mode': mode, 'enable_at_start': enable, 'max_tracking_error': 1.0,
+             parameters=[{'mode': mode, 'enable_at_start': enable, **bridge_settings(arm_model),
                           'master_frame': driver_names(arm)['base_frame'], **frames}]),
-        Node(package=PACKAGE, executable=ARM, namespace=arm, output='screen',
-             parameters=[{'mode': mode, **frames}]),
+        Node(package=PACKAGE, executable=ARM_MODELS[arm_model], namespace=arm, output='screen',
+             parameters=[arm_parameters]),
     ]
 
 
-def _actions(context):
-    def value(name):
-        return LaunchConfiguration(name).perform(context)
-
-    driver = os.path.join(get_package_share_directory(PACKAGE), 'launch', 'kraft_master.launch.py')
-    actions = [IncludeLaunchDescription(
-        PythonLaunchDescriptionSource(driver),
-        launch_arguments={name: value(name) for name in DRIVER_ARGUMENTS}.items())]
-    for arm in ARM_SETS[value('arms')]:
-        actions += pair_nodes(arm, value('mode'), value('enable') == 'true')
+def _actions(value):
+    actions = [DRIVER.scoped_include('kraft_master.launch.py', {
+        name: value(name) for name in ARGUMENTS if name in DRIVER.ARGUMENTS})]
+    for arm in DRIVER.ARM_SETS[value('arms')]:
+        actions += pair_nodes(arm, value('mode'), value('enable') == 'true', value('arm_model'))
     return actions
 
 
 def generate_launch_description():
     """Declare the arguments; the actions are made once their values are known."""
-    config = os.path.join(get_package_share_directory(PACKAGE), 'config')
-    return LaunchDescription([
-        DeclareLaunchArgument('arms', default_value='right', choices=list(ARM_SETS),
-                              description='Which arms to run: right, left or both.'),
-        DeclareLaunchArgument('right_port', default_value='/dev/ttyUSB0',
-                              description='Serial port of the right arm ("sim": simulated).'),
-        DeclareLaunchArgument('left_port', default_value='/dev/ttyUSB1',
-                              description='Serial port of the left arm ("sim": simulated).'),
-        DeclareLaunchArgument('right_params_file',
-                              default_value=os.path.join(config, 'right_arm.yaml'),
-                              description='Parameter file of the right arm.'),
-        DeclareLaunchArgument('left_params_file',
-                              default_value=os.path.join(config, 'left_arm.yaml'),
-                              description='Parameter file of the left arm.'),
-        DeclareLaunchArgument('mode', default_value='pose', choices=list(MODES),
-                              description='The bridge sends servo_cp (pose) or servo_cv '
-                                          '(twist), and the simulated arm takes it.'),
-        DeclareLaunchArgument('enable', default_value='true', choices=BOOLEANS,
-                              description='The bridge enables itself once its inputs are '
-                                          'fresh; false: call the enable service.'),
-        DeclareLaunchArgument('force_enabled', default_value='true', choices=BOOLEANS,
-                              description="The driver's force output enabled at start-up."),
-        DeclareLaunchArgument('sim_operator', default_value='hold', choices=list(OPERATORS),
-                              description='Simulated operator hand, with port "sim".'),
-        DeclareLaunchArgument('rsp', default_value='false', choices=BOOLEANS,
-                              description='Also run robot_state_publisher with the URDF.'),
-        OpaqueFunction(function=_actions),
-    ])
+    return DRIVER.checked_launch('teleop.launch.py', arguments(), _actions, REFUSED)

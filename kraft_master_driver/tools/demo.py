@@ -67,16 +67,15 @@ TABLE_Z = MUJOCO_ARM_PARAMETERS['table.height'].default  # m, the table top
 # the master anew, shifting the arm's stroke; at 0.5 s a stale measured_cp faulted the bridge
 # with the machine's load average at 27 on 2 cores), and its tracking limit the wall: the
 # stroke commands the arm up to 40 mm past it.
-BRIDGE = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args',
-          '-p', 'rate_hz:=500.0', '-p', 'orientation:=fixed', '-p', 'master_timeout:=2.0',
-          '-p', 'arm_timeout:=2.0', '-p', 'ft_timeout:=2.0', '-p', 'max_tracking_error:=0.2']
-# The bridge for the Panda: the hand's weight beyond its sensor taken out of the reading (the
-# arm node logs both figures), the target kept in a box in front of the arm, within its reach
-# hand down, that reaches 5 cm into the table. Its stroke down from the start commands the hand
-# 43 mm past the top, pressing the table with the controller's 1000 N/m.
-MUJOCO_BRIDGE = [*BRIDGE, '-p', 'tool_mass:=1.0045', '-p', 'tool_com:=[0.0, -0.0005, 0.0431]',
-                 '-p', 'workspace_min:=[0.2, -0.3, 0.35]',
-                 '-p', 'workspace_max:=[0.5, 0.3, 0.55]']
+BRIDGE = {'rate_hz': 500.0, 'orientation': 'fixed', 'master_timeout': 2.0, 'arm_timeout': 2.0,
+          'ft_timeout': 2.0, 'max_tracking_error': 0.2}
+# The bridge for the Panda (teleop.launch.py's too): the hand's weight beyond its sensor taken
+# out of the reading (the arm node logs both figures), the target kept in a box in front of the
+# arm, within its reach hand down, that reaches 5 cm into the table. Its stroke down from the
+# start commands the hand 43 mm past the top, pressing the table with the controller's 1000 N/m.
+MUJOCO_BRIDGE = {**BRIDGE, 'tool_mass': 1.0045, 'tool_com': [0.0, -0.0005, 0.0431],
+                 'workspace_min': [0.2, -0.3, 0.35], 'workspace_max': [0.5, 0.3, 0.55]}
+TELEOP = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args']
 DRIVER_NAME = 'kraft_master_node'
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
 HOME = kinematics.forward(Workspace().home(), 'right')[:3, 3]  # the push's top
@@ -87,6 +86,12 @@ ENGAGE_REFRESH = 0.02  # s between looks at the master's pose until the bridge i
 EMULATOR = [sys.executable, '-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
             '-p', 'to_slave.topics:=[pose, master_energy]',
             '-p', 'to_master.topics:=[wrench, slave_energy]']
+
+
+def ros_parameters(parameters):
+    """Return `parameters` ({name: value}) as the -p arguments of a node's command line."""
+    return [argument for name, value in parameters.items()
+            for argument in ('-p', f'{name}:={value}')]
 
 
 def _rows(matrix, scales):
@@ -374,7 +379,8 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
         processes[:0] = [
             subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age],
                              stdout=log.file, **child),
-            subprocess.Popen([*(MUJOCO_BRIDGE if mujoco else BRIDGE), *passive],
+            subprocess.Popen([*TELEOP, *ros_parameters(MUJOCO_BRIDGE if mujoco else BRIDGE),
+                              *passive],
                              stdout=log.file, **arm_child),
             subprocess.Popen(MUJOCO_ARM if mujoco else ARM, stdout=log.file, **arm_child)]
         readout = Readout(bridge_domain, mujoco)

@@ -164,9 +164,10 @@ def panda_arm():
     from kraft_master_driver.tools.demo import BRIDGE as DEMO_BRIDGE, MUJOCO_BRIDGE, TABLE_Z
     start = PandaArm().tool_position()
     # The bridge as the demo sets it for the Panda: its tool, the box in front of it.
-    tokens = MUJOCO_BRIDGE[len(DEMO_BRIDGE):]
-    return Arm('kraft_master_arm_sim', (), tuple(t.split(':=', 1) for t in tokens[1::2]),
-               start, np.array([start[0], start[1], TABLE_Z]), float(start[2] - TABLE_Z))
+    bridge = tuple((name, value) for name, value in MUJOCO_BRIDGE.items()
+                   if name not in DEMO_BRIDGE)
+    return Arm('kraft_master_arm_sim', (), bridge, start,
+               np.array([start[0], start[1], TABLE_Z]), float(start[2] - TABLE_Z))
 
 
 ARMS = {'point-mass': point_mass_arm, 'mujoco': panda_arm}

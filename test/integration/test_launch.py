@@ -41,30 +41,53 @@ def expand(description, **arguments):
     return context, produced
 
 
-def start_in_launch_order(description, started, **arguments):
+def visit_in_launch_order(entity, context, started):
     """
-    Visit depth-first, in the order the launch service does, with `arguments` set.
+    Visit `entity` depth-first, in the order the launch service does.
 
     Processes (nodes included) are appended to `started` where the launch service would start
     them, and not visited.
     """
+    if isinstance(entity, launch.actions.ExecuteProcess):
+        started.append(entity)
+        return
+    for child in entity.visit(context) or []:
+        visit_in_launch_order(child, context, started)
+
+
+def start_in_launch_order(description, started, **arguments):
+    """Visit as the launch service does (visit_in_launch_order), with `arguments` set."""
     context = launch.LaunchContext()
     context.launch_configurations.update(arguments)
+    visit_in_launch_order(description, context, started)
+    return context
 
-    def visit(entity):
-        if isinstance(entity, launch.actions.ExecuteProcess):
-            started.append(entity)
-            return
-        for child in entity.visit(context) or []:
-            visit(child)
 
-    visit(description)
+def launch_from_command_line(file_name, *argv):
+    """
+    Visit `file_name` as `ros2 launch kraft_master_driver <file_name> <argv>` does.
+
+    Return the context and the processes the launch would start.
+    """
+    context = launch.LaunchContext(argv=list(argv))
+    started = []
+    visit_in_launch_order(launch.LaunchDescription([launch.actions.IncludeLaunchDescription(
+        launch.launch_description_sources.PythonLaunchDescriptionSource(
+            str(LAUNCH_DIR / file_name)),
+        launch_arguments=[argument.split(':=', 1) for argument in argv])]), context, started)
+    return context, started
 
 
 def declared(description):
     """Return the description's launch arguments by name."""
     return {a.name: a for a in description.entities
             if isinstance(a, launch.actions.DeclareLaunchArgument)}
+
+
+def text(context, value):
+    """Return a launch value (a string or substitutions) as the launch makes it: a string."""
+    return launch.utilities.perform_substitutions(
+        context, launch.utilities.normalize_to_list_of_substitutions(value))
 
 
 def node_parameters(context, node):
@@ -86,11 +109,13 @@ def installed_share(install_prefix, monkeypatch):
 
 @pytest.mark.parametrize('file_name, arguments, operator', [
     ('kraft_master.launch.py', {'arms', 'rsp', 'right_port', 'left_port', 'force_enabled',
-                                'right_params_file', 'left_params_file', 'crtk'},
+                                'right_params_file', 'left_params_file', 'crtk',
+                                'rate_command'},
      'sim_operator'),
-    ('teleop_demo.launch.py', {'arm', 'mode', 'rsp'}, 'operator'),
+    ('teleop_demo.launch.py', {'arms', 'arm_model', 'mode', 'rsp'}, 'sim_operator'),
     ('teleop.launch.py', {'arms', 'mode', 'enable', 'rsp', 'right_port', 'left_port',
-                          'force_enabled', 'right_params_file', 'left_params_file'},
+                          'force_enabled', 'right_params_file', 'left_params_file',
+                          'arm_model', 'rate_command'},
      'sim_operator'),
 ])
 def test_launch_description_declares_its_arguments(installed_share, file_name, arguments,
@@ -192,11 +217,12 @@ def test_rsp_adds_a_robot_state_publisher_per_arm(installed_share, install_prefi
         (PACKAGE, 'kraft_master_node'), ('robot_state_publisher', 'robot_state_publisher')] * 2
 
 
-def included_arguments(context, include):
-    """Return the launch arguments an IncludeLaunchDescription passes, as strings."""
-    return {launch.utilities.perform_substitutions(context, name):
-            launch.utilities.perform_substitutions(context, value)
-            for name, value in include.launch_arguments}
+def included_arguments(context, group):
+    """Return the launch arguments the include of a scoped_include group passes, as strings."""
+    assert isinstance(group, launch.actions.GroupAction)
+    (include,) = [entity for entity in group.get_sub_entities()
+                  if isinstance(entity, launch.actions.IncludeLaunchDescription)]
+    return {text(context, name): text(context, value) for name, value in include.launch_arguments}
 
 
 @pytest.mark.parametrize('arms, expected', [('right', ('right',)), ('left', ('left',)),
@@ -208,19 +234,18 @@ def test_teleop_runs_per_arm_its_driver_bridge_and_simulated_arm_in_its_frames(
     context, actions = expand(module.generate_launch_description(), arms=arms, mode=mode,
                               right_port='sim', enable='false')
     include, *nodes = actions
-    assert isinstance(include, launch.actions.IncludeLaunchDescription)
     passed = included_arguments(context, include)
     assert passed['arms'] == arms and passed['right_port'] == 'sim'
     assert passed['force_enabled'] == 'true'
     assert [(n.node_package, n.node_executable) for n in nodes] == [
-        (PACKAGE, 'kraft_master_teleop'), (PACKAGE, module.ARM)] * len(expected)
+        (PACKAGE, 'kraft_master_teleop'), (PACKAGE, module.ARM_MODELS['point_mass'])
+    ] * len(expected)
     for arm, bridge, simulated in zip(expected, nodes[::2], nodes[1::2]):
         bridge_values = node_parameters(context, bridge)[1]
         arm_values = node_parameters(context, simulated)[1]
         # Each pair in its arm's namespace, on the driver's base frame, the arm's frames agreed.
         for node in (bridge, simulated):
-            assert launch.utilities.perform_substitutions(
-                context, node._Node__node_namespace) == arm
+            assert text(context, node._Node__node_namespace) == arm
         assert bridge_values['master_frame'] == driver_names(arm)['base_frame']
         for name in ('arm_frame', 'ft_frame'):
             assert bridge_values[name] == arm_values[name]
@@ -231,9 +256,101 @@ def test_teleop_runs_per_arm_its_driver_bridge_and_simulated_arm_in_its_frames(
 
 def test_teleop_demo_runs_teleop_for_one_simulated_arm_enabled_at_start(installed_share):
     context, actions = expand(load('teleop_demo.launch.py').generate_launch_description(),
-                              arm='left', mode='twist')
+                              arms='left', mode='twist')
     (include,) = actions
-    assert isinstance(include, launch.actions.IncludeLaunchDescription)
     assert included_arguments(context, include) == {
         'arms': 'left', 'left_port': 'sim', 'force_enabled': 'true', 'enable': 'true',
-        'sim_operator': 'sweep', 'rsp': 'false', 'mode': 'twist'}
+        'sim_operator': 'sweep', 'rsp': 'false', 'mode': 'twist', 'arm_model': 'point_mass'}
+
+
+def test_the_three_files_share_one_vocabulary_that_show_args_lists(installed_share):
+    files = ('kraft_master.launch.py', 'teleop.launch.py', 'teleop_demo.launch.py')
+    modules = {file_name: load(file_name) for file_name in files}
+    # What `ros2 launch ... --show-args` prints: the description's launch arguments.
+    listed = {file_name: {a.name: a for a in module.generate_launch_description()
+                          .get_launch_arguments()}
+              for file_name, module in modules.items()}
+    for file_name, arguments in listed.items():
+        assert list(arguments) == list(modules[file_name].ARGUMENTS), file_name
+        assert all(argument.description for argument in arguments.values()), file_name
+    # A name means the same wherever it is taken: one description, one set of choices.
+    for name in {name for arguments in listed.values() for name in arguments}:
+        taken = [arguments[name] for arguments in listed.values() if name in arguments]
+        assert len({(a.description, tuple(a.choices or ())) for a in taken}) == 1, name
+    assert {'arms', 'arm_model', 'mode', 'sim_operator', 'rsp'} <= (
+        set(listed['teleop.launch.py']) & set(listed['teleop_demo.launch.py']))
+
+
+@pytest.mark.parametrize('file_name, argv, message', [
+    ('teleop.launch.py', ('right_port:=sim', 'crtk:=true'),
+     "takes no argument crtk (the driver's CRTK topics measured_cp and measured_js"),
+    ('teleop_demo.launch.py', ('arm:=left', 'operator:=hold'),
+     'teleop_demo.launch.py takes no argument arm, operator; it takes arms, arm_model'),
+    ('teleop_demo.launch.py', ('right_port:=/dev/ttyUSB0',), 'takes no argument right_port'),
+    ('kraft_master.launch.py', ('arms:=both', 'mode:=twist'), 'takes no argument mode'),
+])
+def test_an_argument_the_file_does_not_take_stops_the_launch_before_any_process(
+        installed_share, file_name, argv, message):
+    # Raised by the included file's own module: its LaunchCheckError, by name.
+    with pytest.raises(RuntimeError, match=re.escape(message)) as raised:
+        launch_from_command_line(file_name, *argv)
+    assert raised.type.__name__ == 'LaunchCheckError'
+
+
+@pytest.mark.parametrize('argv', [
+    ('arms:=both', 'sim_operator:=hold'),
+    # ros2 launch hands its --launch-prefix over as an argument: every file takes it.
+    ('arms:=both', 'launch-prefix:=nice'),
+])
+def test_teleop_demo_takes_the_vocabularys_arms_and_sim_operator(installed_share, argv):
+    context, started = launch_from_command_line('teleop_demo.launch.py', *argv)
+    drivers = [node for node in started if node.node_executable == 'kraft_master_node']
+    assert len(drivers) == 2
+    for node in drivers:
+        values = node_parameters(context, node)[1]
+        assert values['port'] == 'sim'
+        assert values['sim_operator'] == ('hold' if 'sim_operator:=hold' in argv else 'sweep')
+
+
+def test_an_included_file_gets_only_its_arguments_not_its_includers(installed_share):
+    # A parent that does not scope its include leaves its configuration to teleop.launch.py
+    # (crtk here): the driver's launch file, which teleop.launch.py includes, does not see it.
+    started = []
+    context = start_in_launch_order(load('teleop.launch.py').generate_launch_description(),
+                                    started, right_port='sim', crtk='true', mode='twist')
+    (driver,) = [node for node in started if node.node_executable == 'kraft_master_node']
+    assert node_parameters(context, driver)[1]['crtk_names'] is False
+
+
+@pytest.mark.parametrize('mode', ['pose', 'twist'])
+def test_the_panda_runs_behind_the_bridge_with_the_demos_settings_one_per_arm(
+        installed_share, mode):
+    from kraft_master_driver.tools.demo import MUJOCO_BRIDGE  # MuJoCo: only here
+    module = load('teleop.launch.py')
+    context, (_, *nodes) = expand(module.generate_launch_description(), arms='both',
+                                  arm_model='panda', mode=mode)
+    assert [(n.node_package, n.node_executable) for n in nodes] == [
+        (PACKAGE, 'kraft_master_teleop'), (PACKAGE, 'kraft_master_arm_sim')] * 2
+    frames = set()
+    for arm, bridge, panda in zip(('right', 'left'), nodes[::2], nodes[1::2]):
+        bridge_values = node_parameters(context, bridge)[1]
+        panda_values = node_parameters(context, panda)[1]
+        # Lists come out of the launch's evaluation as tuples.
+        assert {k: bridge_values[k] for k in MUJOCO_BRIDGE} == {
+            k: tuple(v) if isinstance(v, list) else v for k, v in MUJOCO_BRIDGE.items()}
+        assert bridge_values['mode'] == mode
+        # The Panda takes servo_cp and servo_cv alike: only its frames, the bridge's.
+        assert panda_values == {k: bridge_values[k] for k in ('arm_frame', 'ft_frame')}
+        for node in (bridge, panda):
+            assert text(context, node._Node__node_namespace) == arm
+        frames |= set(panda_values.values())
+    # Two Pandas side by side: relative topics in their own namespaces, four frames.
+    assert len(frames) == 4
+
+
+def test_teleop_demo_runs_two_pandas_on_two_simulated_masters(installed_share):
+    context, (include,) = expand(load('teleop_demo.launch.py').generate_launch_description(),
+                                 arms='both', arm_model='panda')
+    passed = included_arguments(context, include)
+    assert {k: passed[k] for k in ('arms', 'right_port', 'left_port', 'arm_model')} == {
+        'arms': 'both', 'right_port': 'sim', 'left_port': 'sim', 'arm_model': 'panda'}

@@ -16,11 +16,16 @@ import re
 import signal
 import sys
 
+from geometry_msgs.msg import Vector3Stamped
 from harness.driver import installed_env, next_domain_id, RosClient, wait_for, WAIT_S
 from harness.reaper import Reaped
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.simulation.master.model import Workspace
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools.urdf_model import driver_names
+import numpy as np
 import pytest
+from std_srvs.srv import SetBool
 
 NOT_HERE = ('launch and launch_ros cannot be installed on this machine: they are not on PyPI '
             '(they come with a ROS 2 install; run these tests there)')
@@ -139,3 +144,84 @@ def test_a_stopped_teleop_demo_leaves_nothing_running(install_prefix, tmp_path, 
     finally:
         launch.close()
         client.close()
+
+
+def test_an_argument_the_file_does_not_take_stops_the_launch_before_any_process(
+        install_prefix, tmp_path):
+    # crtk is the driver's: given to teleop.launch.py, whose included driver took it, its CRTK
+    # measured_cp came beside the simulated arm's and the bridge faulted (issue 43).
+    launch = run_launch_file(install_prefix, next_domain_id(), tmp_path / 'launch.log',
+                             'teleop.launch.py', right_port='sim', crtk='true')
+    try:
+        exits = launch.exits()
+        log = launch.log()
+        assert exits == {launch.pid: 1}, log
+        assert started_processes(log) == {}, log
+        (line,) = [line for line in log.splitlines() if '[ERROR]' in line]
+        assert 'teleop.launch.py takes no argument crtk' in line
+    finally:
+        launch.close()
+
+
+def enable_at_the_top(client, arm):
+    """
+    Enable the bridge of `arm` with the master's wrist at the top of the push, as the demo does.
+
+    The bridge registers the master where it is when asked: there, each stroke brings the arm's
+    hand down onto its table. A first call, `enable false`, opens the way for a prompt second.
+    """
+    from kraft_master_driver.tools.demo import ENGAGE_DISTANCE  # MuJoCo: only here
+    top = kinematics.forward(Workspace().home(), arm)[:3, 3]
+    enable = client.node.create_client(SetBool, 'enable')
+
+    def call(data):
+        assert enable.wait_for_service(timeout_sec=WAIT_S)
+        future = enable.call_async(SetBool.Request(data=data))
+        return client.wait(lambda: future.result())
+
+    def at_the_top():
+        position = client.poses and client.poses[-1].pose.position
+        return position and np.linalg.norm(
+            np.array([position.x, position.y, position.z]) - top) < ENGAGE_DISTANCE
+
+    call(False)
+    client.wait(lambda: at_the_top() and call(True).success)
+
+
+@pytest.mark.parametrize('file_name, arguments, ending', [
+    ('teleop.launch.py', {'right_port': 'sim'}, 'Ctrl-C'),
+    ('teleop.launch.py', {'arms': 'both', 'right_port': 'sim', 'left_port': 'sim'}, 'SIGTERM'),
+])
+def test_the_panda_behind_the_bridge_is_felt_on_its_table_and_stops_with_the_launch(
+        install_prefix, tmp_path, file_name, arguments, ending):
+    domain_id = next_domain_id()
+    arms = ('right', 'left') if arguments.get('arms') == 'both' else ('right',)
+    clients = {arm: RosClient(domain_id, namespace=f'/{arm}') for arm in arms}
+    table_forces = {arm: [] for arm in arms}
+    for arm, client in clients.items():
+        client.node.create_subscription(Vector3Stamped, 'table_force',
+                                        table_forces[arm].append, 10)
+    launch = run_launch_file(install_prefix, domain_id, tmp_path / 'launch.log', file_name,
+                             arm_model='panda', sim_operator='push', enable='false',
+                             **arguments)
+
+    def felt(arm):
+        # On the table, and the driver's torques show it.
+        forces, states = table_forces[arm], clients[arm].joint_states
+        return (forces and abs(forces[-1].vector.z) > 1.0
+                and states and max(map(abs, states[-1].effort)) > 0.1)
+
+    try:
+        for arm, client in clients.items():
+            enable_at_the_top(client, arm)
+            client.wait(lambda: felt(arm))
+            assert table_forces[arm][-1].header.frame_id == f'{arm}_sim_arm_base'
+        assert sorted(name.rsplit('-', 1)[0] for name in started_processes(launch.log())
+                      .values()) == sorted(['kraft_master_node', 'kraft_master_teleop',
+                                            'kraft_master_arm_sim'] * len(arms))
+        end(launch, ending)
+        assert_every_process_ended_well(launch, ending)
+    finally:
+        launch.close()
+        for client in clients.values():
+            client.close()
