@@ -109,13 +109,14 @@ class TeleopNode(Node):
         self._tick_period = 1.0 / config['rate_hz']
         steady_timer(self, 1.0, self._publish_diagnostics)
         self._send(self.bridge.first_outputs())
-        self._running = True
-        self._input_thread = threading.Thread(target=self._take_inputs, name='teleop_inputs')
-        self._input_thread.start()
+        # The banner first: the input thread may enable the bridge at once (enable_at_start).
         self.get_logger().info(
             f'bridge in {self.mode} mode, scale {config["scale"]:g}, orientation '
             f'{config["orientation"]}; DISABLED until the enable service is called'
             + (' (enabled at start once it can be)' if self.enable_at_start else ''))
+        self._running = True
+        self._input_thread = threading.Thread(target=self._take_inputs, name='teleop_inputs')
+        self._input_thread.start()
 
     def _tf_lookup(self):
         """

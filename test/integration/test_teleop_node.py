@@ -329,7 +329,7 @@ def test_enable_is_refused_without_the_inputs(start_bridge):
 
 
 def test_enable_at_start_waits_for_the_inputs_then_enables_once(start_bridge):
-    rig, _ = start_bridge([('enable_at_start', 'true')], silent=['measured_cf'])
+    rig, process = start_bridge([('enable_at_start', 'true')], silent=['measured_cf'])
     # Every input but the F/T reading: still DISABLED, nothing sent to the arm.
     rig.run_until(lambda: len(rig.wrenches) > 20)
     assert rig.state() == 'DISABLED: not enabled' and not rig.servo_cp
@@ -341,6 +341,11 @@ def test_enable_at_start_waits_for_the_inputs_then_enables_once(start_bridge):
     rig.forget()
     rig.run_until(lambda: len(rig.wrenches) > 20)
     assert rig.state() == 'DISABLED: disabled' and not rig.servo_cp
+    # The start-up banner comes before the bridge enables itself.
+    _, output = process.interrupt()
+    lines = output.splitlines()
+    banner = next(i for i, line in enumerate(lines) if 'DISABLED until the enable' in line)
+    assert banner < next(i for i, line in enumerate(lines) if 'enabled at start: ' in line)
 
 
 def test_twist_mode_drives_toward_the_target_and_stops_when_clutched(start_bridge):
