@@ -202,6 +202,8 @@ class KraftMasterNode(Node):
                                                if key in settings})
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
+        if changes.get('rate_command_enabled'):
+            self.topics.advertise_rate_command()  # before the loop sees it enabled
         if 'passivity' in changes:
             self.master_port.enabled = changes['passivity']
         if 'velocity_cutoff_hz' in changes:
