@@ -189,7 +189,13 @@ def start_bridge(install_prefix):
 def enabled(rig):
     """Enable and wait until following: the first servo_cp after enable has come."""
     rig.servo_cp.clear()
-    response = rig.enable()
+
+    def answered():
+        # Matched on the rig's side is not yet heard on the bridge's: until every input has
+        # reached the bridge, enable says 'no fresh ...'; any other answer is the answer.
+        response = rig.enable()
+        return response if response.success or 'no fresh' not in response.message else None
+    response = rig.run_until(answered)
     assert response.success, response.message
     rig.run_until(lambda: rig.servo_cp)
     return rig
