@@ -18,7 +18,8 @@ to send (Outputs): the arm's command, the master's wrench, the slave port's ener
 operating state when it changed, and why an input was refused. enable() and disable() return
 an Answer, which carries those Outputs. The motion path (mapping, limits, the slave port) is
 core/teleoperation_motion.py, the force path core/teleoperation_force.py, the input checks
-core/teleoperation_inputs.py, the settings core/teleoperation_settings.py.
+core/teleoperation_inputs.py, the settings core/teleoperation_settings.py; configure() takes
+new settings while it runs (core/teleoperation_tuning.py: what a change asks for).
 
 Frames: the master's pose is in the master's base frame, the arm's pose and its target in the
 arm's base frame; `base_rotation` turns master-base vectors into arm-base ones. The wrist F/T
@@ -35,6 +36,7 @@ from kraft_master_driver.core.teleoperation_inputs import (
     checked_pose, checked_reading, Floats, tracking_error)
 from kraft_master_driver.core.teleoperation_motion import Motion, Pose
 from kraft_master_driver.core.teleoperation_settings import Array, checked, MAX_STEP, Settings
+from kraft_master_driver.core.teleoperation_tuning import changed, FORCE, REGISTERING, WrenchRamp
 import numpy as np
 
 
@@ -101,6 +103,7 @@ class Teleoperation:
         self.port.enabled = settings.passivity
         self.motion = Motion(settings, checked_settings.box, self.port)
         self.force = ForcePath(settings, checked_settings.sensor_rotation)
+        self._ramp: Optional[WrenchRamp] = None  # the force path before a change, while ramping
         self.state = OperatingState.DISABLED
         self.reason = 'not enabled'
         self.clutch_pressed = False
@@ -215,6 +218,34 @@ class Teleoperation:
             return str(error)
         return None
 
+    def configure(self, settings: Settings, now: float) -> None:
+        """
+        Take new settings at `now`; ValueError names a bad one, and then nothing changes.
+
+        They are checked as at start-up. mode and the frames are the caller's to keep. A change
+        of the mapping registers anew where the arm was last sent, a change of the force path
+        is ramped in (core/teleoperation_tuning.py).
+        """
+        checked_settings = checked(settings)
+        changes = changed(self.settings, settings)
+        held = self.arm_command() if self.state in DRIVING else None
+        if FORCE & changes:
+            self._ramp = WrenchRamp(self.force, self.settings.force_feedback,
+                                    self.base_rotation, now, self._ramp)
+            self.force = self.force.retuned(settings, checked_settings.sensor_rotation)
+        if 'base_rotation' in changes:
+            self.base_rotation = checked_settings.base_rotation
+        self.settings = self.motion.settings = settings
+        self.motion.box = checked_settings.box
+        self.port.drift_gain = settings.drift_gain
+        self.port.enabled = settings.passivity
+        if held is not None and REGISTERING & changes:
+            if self.following:
+                assert self.master is not None  # the registration took a master pose
+                self.motion.register(self.master[0], held)
+            else:
+                self.hold = held
+
     def disable(self) -> Answer:
         """Stop: nothing more is sent to the arm."""
         self.state, self.reason = OperatingState.DISABLED, 'disabled'
@@ -323,6 +354,7 @@ class Teleoperation:
         if arm is None or now - arm[1] > self.settings.arm_timeout:
             return 'no fresh measured_cp: the tool weight needs the orientation'
         self.force.tare(reading[0], arm[0].rotation)
+        self._ramp = None  # the bias steps the wrench anyway: no blend with the one before
         return None
 
     # -- what to send ------------------------------------------------------------------
@@ -364,6 +396,22 @@ class Teleoperation:
 
     def master_wrench(self, now: float) -> Array:
         """Return the wrench for the master (6, master base frame); zeros unless following."""
-        if not (self.following and self.settings.force_feedback and self.reading is not None):
-            return self.force.zero()
-        return self.force.master_wrench(self.contact_wrench(), self.base_rotation, now)
+        if self._ramp is not None and self._ramp.weight(now) == 1.0:
+            self._ramp = None
+        return self._ramped(self.force, self.settings.force_feedback, self.base_rotation,
+                            self._ramp, now)
+
+    def _ramped(self, force: ForcePath, force_feedback: bool, base_rotation: Array,
+                ramp: Optional[WrenchRamp], now: float) -> Array:
+        """Return the wrench of a force path, blended from the one before while `ramp` runs."""
+        if self.following and force_feedback and self.reading is not None:
+            assert self.arm is not None  # following needs it
+            contact = force.contact_wrench(self.reading[0], self.arm[0].rotation)
+            wrench = force.master_wrench(contact, base_rotation, now)
+        else:
+            wrench = force.zero()
+        if ramp is None or ramp.weight(now) == 1.0:
+            return wrench
+        before = self._ramped(ramp.force, ramp.force_feedback, ramp.base_rotation, ramp.before,
+                              now)
+        return before + ramp.weight(now) * (wrench - before)

@@ -32,6 +32,13 @@ class ForcePath:
         self._filtered = np.zeros(6)
         self._filtered_at: Optional[float] = None
 
+    def retuned(self, settings: Settings, sensor_rotation: Array) -> 'ForcePath':
+        """Return a path with new settings that keeps this one's bias and low-pass state."""
+        path = ForcePath(settings, sensor_rotation)
+        path.bias = self.bias
+        path._filtered, path._filtered_at = self._filtered, self._filtered_at
+        return path
+
     def _sensor_in_base(self, arm_rotation: Array) -> Array:
         return arm_rotation @ self.sensor_rotation
 

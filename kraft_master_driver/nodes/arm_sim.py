@@ -8,7 +8,7 @@ that moves the target) in `arm_frame`, and publishes `measured_cp` (the tool's p
 `arm_frame`), `measured_js` (JointState) and `measured_cf` (the wrist F/T sensor's reading in
 `ft_frame`: the wrench the tool applies to the sensor), as the arm side of kraft_master_teleop
 expects them. The physics steps 1 ms at a time, paced to the wall clock, and its real-time
-factor is in the diagnostics. A command older than command_timeout, or none, holds the arm
+factor is in the diagnostics. A command command_timeout old or older, or none, holds the arm
 still. The arm, its controller and its table are simulation.arms.panda.PandaArm (no ROS);
 this node only moves messages.
 """
@@ -45,7 +45,7 @@ PARAMETERS = {
                       "table_force: the arm's base frame."),
     'ft_frame': Spec('ft_sensor', 'frame_id of measured_cf: the F/T sensor at the flange, '
                      'turned as the tool frame.'),
-    'command_timeout': Spec(0.1, 'An older servo_cp or servo_cv holds the arm where it is '
+    'command_timeout': Spec(0.1, 'A servo_cp or servo_cv this old holds the arm where it is '
                             '(s).', low=0.001, high=10.0),
     'translational_stiffness': Spec(_GAINS.translational_stiffness, 'Cartesian stiffness '
                                     '(N/m).', low=1.0, high=5000.0),

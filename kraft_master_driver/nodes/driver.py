@@ -26,7 +26,8 @@ from kraft_master_driver.nodes.driver_diagnostics import DriverReadings
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS, SIM_PORT
 from kraft_master_driver.nodes.driver_topics import InputTopics, StateTopics
 from kraft_master_driver.nodes.node_process import run_node
-from kraft_master_driver.nodes.parameters import check_value, declare_parameters, ParameterError
+from kraft_master_driver.nodes.parameters import (
+    declare_parameters, ParameterError, run_time_changes)
 from kraft_master_driver.nodes.ros_io import GIL_SWITCH_INTERVAL_S, steady_timer
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -186,18 +187,10 @@ class KraftMasterNode(Node):
         return response
 
     def _on_set_parameters(self, parameters):
-        changes = {}
-        for parameter in parameters:
-            spec = PARAMETERS.get(parameter.name)
-            if spec is None:
-                continue
-            if spec.read_only:
-                return SetParametersResult(
-                    successful=False, reason=f'parameter {parameter.name} is read-only')
-            try:
-                changes[parameter.name] = check_value(PARAMETERS, parameter.name, parameter.value)
-            except ParameterError as error:
-                return SetParametersResult(successful=False, reason=str(error))
+        try:
+            changes = run_time_changes(PARAMETERS, parameters)
+        except ParameterError as error:
+            return SetParametersResult(successful=False, reason=str(error))
         settings = {key: tuple(value) if isinstance(value, list) else value
                     for key, value in changes.items()}
         try:
@@ -209,6 +202,8 @@ class KraftMasterNode(Node):
                                                if key in settings})
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
+        if changes.get('rate_command_enabled'):
+            self.topics.advertise_rate_command()  # before the loop sees it enabled
         if 'passivity' in changes:
             self.master_port.enabled = changes['passivity']
         if 'velocity_cutoff_hz' in changes:

@@ -70,7 +70,8 @@ PARAMETERS = {
                              '(N*m/rad).', read_only=False, low=0.0, high=1e4, length=2),
     'centre_damping': Spec([0.0, 0.0], 'Return-to-centre damping: linear (N*s/m), angular '
                            '(N*m*s/rad).', read_only=False, low=0.0, high=1e3, length=2),
-    'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain).',
+    'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain); '
+                                 'the topic exists from the first time this is true.',
                                  read_only=False),
     'rate_gain': Spec([1.0, 1.0], 'Rate command gains: linear (1/s), angular (1/s).',
                       read_only=False, low=0.0, high=100.0, length=2),

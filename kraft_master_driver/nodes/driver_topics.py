@@ -34,19 +34,21 @@ class StateTopics:
         """Create the publishers on `node`; config is the node's (live) parameter values."""
         self.config = config
         self.master_port = master_port
-        state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self._node = node
+        self._qos = state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
-        quiet = PublisherEventCallbacks(use_default_callbacks=False)
-        (self.joint_pub, self.pose_pub, self.pots_pub, self.rate_pub, self.energy_pub,
-         self.diagnostics) = (
+        self._quiet = quiet = PublisherEventCallbacks(use_default_callbacks=False)
+        (self.joint_pub, self.pose_pub, self.pots_pub, self.energy_pub, self.diagnostics) = (
             node.create_publisher(msg_type, topic, state_qos, event_callbacks=quiet)
             for msg_type, topic in (
                 (JointState, 'joint_states'), (PoseStamped, 'pose'), (JointState, 'pots'),
-                (TwistStamped, 'rate_command'),
                 # Energy in, out and dissipated at the master port (J), stamped when sent.
                 (Vector3Stamped, 'master_energy'),
                 # Where diagnostic_updater publishes them, whatever the namespace.
                 (DiagnosticArray, '/diagnostics')))
+        self.rate_pub = None  # rate_command: only once rate_command_enabled is true
+        if config['rate_command_enabled']:
+            self.advertise_rate_command()
         # CRTK's names for the same state (crtk_names), else nothing is created or published.
         self.crtk_pubs = None
         if config['crtk_names']:
@@ -61,6 +63,18 @@ class StateTopics:
         self._pots_cdr = cdr.JointStateEncoder(base, POT_NAMES, (6, 0, 0))
         self._twist_cdr = cdr.StampedDoublesEncoder(base, 6)
         self._energy_cdr = cdr.StampedDoublesEncoder(base, 3)
+
+    def advertise_rate_command(self):
+        """
+        Create rate_command's publisher, unless it exists (in the executor's thread).
+
+        Never destroyed while the node runs: the loop thread may be publishing on it, and
+        rclpy refuses a publish on a publisher destroyed under it. Set false again,
+        rate_command_enabled leaves it advertised and silent.
+        """
+        if self.rate_pub is None:
+            self.rate_pub = self._node.create_publisher(
+                TwistStamped, 'rate_command', self._qos, event_callbacks=self._quiet)
 
     def publish(self, result, estimate, centre):
         """Publish one cycle: joint state, pose, pots, energies, rate command if asked."""
@@ -81,6 +95,7 @@ class StateTopics:
         port = self.master_port
         self.energy_pub.publish(self._energy_cdr.encode(
             sec, nanosec, (port.energy_in, port.energy_out, port.dissipated)))
+        # rate_pub exists before rate_command_enabled is first true (advertise_rate_command).
         if self.config['rate_command_enabled'] and centre is not None:
             linear, angular = rate_command(np.array(pose).reshape(4, 4), centre,
                                            *self.config['rate_gain'])

@@ -6,9 +6,10 @@ ROS parameters of the package's nodes as users type them, and the checks that re
 A node describes its parameters in a table of Spec. declare_parameters() refuses a parameter
 given for the node that the table does not know (naming the nearest known one), accepts an
 integer wherever a floating-point value is expected (at start-up and at run time: the parameter
-stays DOUBLE), and checks every value against its Spec. read_params_file() checks a params file
-as rcl would read it; usage() is a node's --help text. Every refusal is a ParameterError of one
-line; node_process.run_node() prints it and exits 1.
+stays DOUBLE), and checks every value against its Spec. run_time_changes() checks a set at run
+time the same way, and refuses one of a parameter fixed at start-up. read_params_file() checks a
+params file as rcl would read it; usage() is a node's --help text. Every refusal is a
+ParameterError of one line; node_process.run_node() prints it and exits 1.
 """
 import difflib
 import math
@@ -182,6 +183,24 @@ def declare_parameters(node, table, params_files=()):
         values[name] = check_value(table, name, value)
     node.add_pre_set_parameters_callback(lambda parameters: coerce_integers(table, parameters))
     return values
+
+
+def run_time_changes(table, parameters):
+    """
+    Return {name: checked value} of a run-time set of `parameters` of `table`.
+
+    A read-only parameter, or a value check_value() refuses, raises ParameterError (one line).
+    Parameters the table does not know (the standard ones) are left out.
+    """
+    changes = {}
+    for parameter in parameters:
+        spec = table.get(parameter.name)
+        if spec is None:
+            continue
+        if spec.read_only:
+            raise ParameterError(f'parameter {parameter.name} is read-only')
+        changes[parameter.name] = check_value(table, parameter.name, parameter.value)
+    return changes
 
 
 # -- params files ------------------------------------------------------------------------

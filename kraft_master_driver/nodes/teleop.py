@@ -14,7 +14,9 @@ The four streaming inputs (pose, master_energy, measured_cp, measured_cf) are ta
 thread of their own that waits on them alone and handles each message as it comes
 (nodes/ros_io.py), and servo_cp, servo_cv and wrench go out as CDR bytes (nodes/cdr.py):
 through rclpy's typed messages and executor the bridge kept up with about one pose in 15 at
-1 kHz (benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers.
+1 kHz (benchmarks/bridge.py). The executor serves the rest: clutch, joy, services, timers,
+and the parameter service: a run-time set is checked as at start-up and handed to the bridge
+under the lock its inputs take (Teleoperation.configure: one new Settings, all at once).
 """
 import sys
 import threading
@@ -29,12 +31,14 @@ from kraft_master_driver.core.teleoperation_settings import Settings
 from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.driver_diagnostics import ERROR, OK
 from kraft_master_driver.nodes.node_process import run_node
-from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError
+from kraft_master_driver.nodes.parameters import (
+    declare_parameters, ParameterError, run_time_changes)
 from kraft_master_driver.nodes.ros_io import (
     GIL_SWITCH_INTERVAL_S, InputWaitSet, run_paced, steady_timer, subscribe_raw,
     take_oldest_received)
 from kraft_master_driver.nodes.teleop_diagnostics import bridge_diagnostics
 from kraft_master_driver.nodes.teleop_parameters import PARAMETERS
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -48,6 +52,13 @@ VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
 DIAGNOSTIC_LEVELS = {OK: DiagnosticStatus.OK, ERROR: DiagnosticStatus.ERROR}
 
 
+def with_values(settings, values):
+    """Return `settings` with the parameter values among `values` that are Settings' fields."""
+    return settings._replace(**{
+        name: tuple(value) if isinstance(value, list) else value
+        for name, value in values.items() if name in Settings._fields})
+
+
 class TeleopNode(Node):
     """Moves messages between the master, the arm and a Teleoperation."""
 
@@ -56,9 +67,7 @@ class TeleopNode(Node):
         super().__init__('kraft_master_teleop', **kwargs)
         config = declare_parameters(self, PARAMETERS, params_files)
         try:
-            self.bridge = Teleoperation(Settings(**{
-                name: tuple(config[name]) if isinstance(config[name], list) else config[name]
-                for name in Settings._fields}))
+            self.bridge = Teleoperation(with_values(Settings(), config))
         except ValueError as error:
             raise ParameterError(f'parameter {error}') from None
         self.mode = config['mode']
@@ -106,6 +115,7 @@ class TeleopNode(Node):
                                      event_callbacks=quiet_input)
         self.create_service(SetBool, 'enable', self._on_enable)
         self.create_service(Trigger, 'tare', self._on_tare)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._tick_period = 1.0 / config['rate_hz']
         steady_timer(self, 1.0, self._publish_diagnostics)
         self._send(self.bridge.first_outputs())
@@ -234,6 +244,25 @@ class TeleopNode(Node):
         response.message = answer.refusal or answer.state
         self.get_logger().info(f'enable {request.data}: {response.message}')
         return response
+
+    def _on_set_parameters(self, parameters):
+        """Check a run-time set as at start-up, then hand the bridge its new settings."""
+        try:
+            changes = run_time_changes(PARAMETERS, parameters)
+            if 'base_rotation' in changes and self._base_rotation_from_tf is not None:
+                raise ParameterError('parameter base_rotation is taken from TF '
+                                     '(base_rotation_from_tf)')
+            with self._lock:
+                self.bridge.configure(with_values(self.bridge.settings, changes),
+                                      time.monotonic())
+        except ParameterError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        except ValueError as error:  # what Settings' own check refuses, as at start-up
+            return SetParametersResult(successful=False, reason=f'parameter {error}')
+        if changes:
+            self.get_logger().info('set ' + ', '.join(
+                f'{name} {value}' for name, value in changes.items()))
+        return SetParametersResult(successful=True)
 
     def _on_tare(self, _request, response):
         with self._lock:

@@ -1,6 +1,11 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""The parameters of kraft_master_teleop: name, default, description with units, range."""
+"""
+The parameters of kraft_master_teleop: name, default, description with units, range.
+
+The settings of core.teleoperation_settings.Settings are settable at run time (_tunable), but
+for the mode and the frames; what is fixed at start-up says why in its description.
+"""
 import math
 
 from kraft_master_driver.core.teleoperation_settings import MODES, ORIENTATIONS, Settings
@@ -15,81 +20,95 @@ def _spec(name, description, **bounds):
     return Spec(list(default) if isinstance(default, tuple) else default, description, **bounds)
 
 
+def _tunable(name, description, **bounds):
+    """Return the Spec of a setting that is settable at run time."""
+    return _spec(name, description, read_only=False, **bounds)
+
+
 PARAMETERS = {
     'mode': _spec('mode', "'pose': publish servo_cp, the target pose; 'twist': publish "
-                  'servo_cv, a twist toward it (MoveIt Servo).', choices=MODES),
+                  'servo_cv, a twist toward it (MoveIt Servo). Fixed: it chooses the '
+                  'publisher.', choices=MODES),
     'rate_hz': Spec(100.0, 'Rate of the timeout checks, of the hold command while not '
-                    'following, and of slave_energy (Hz).', low=1.0, high=2000.0),
-    'scale': _spec('scale', 'Arm motion per master motion (1).', low=0.001, high=100.0),
-    'orientation': Spec('follow', "'follow': the arm turns as the master does; 'fixed': it "
-                        "keeps its orientation at registration; 'ignore': not commanded (pose "
-                        'mode sends the measured one, twist mode no rotation).',
-                        choices=ORIENTATIONS),
-    'base_rotation': _spec('base_rotation', "Rotation of the master's base frame in the "
-                           "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, z, "
-                           'w.'),
+                    "following, and of slave_energy (Hz). Fixed: the input thread's pace is "
+                    'set as it starts.', low=1.0, high=2000.0),
+    'scale': _tunable('scale', 'Arm motion per master motion (1); a change registers anew.',
+                      low=0.001, high=100.0),
+    'orientation': _tunable('orientation', "'follow': the arm turns as the master does; "
+                            "'fixed': it keeps its orientation at registration; 'ignore': not "
+                            'commanded (pose mode sends the measured one, twist mode no '
+                            'rotation); a change registers anew.', choices=ORIENTATIONS),
+    'base_rotation': _tunable('base_rotation', "Rotation of the master's base frame in the "
+                              "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, "
+                              'z, w; a change registers anew and ramps the wrench.'),
     'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
-                                  'rotation of master_frame in arm_frame (needs tf2_ros).'),
-    'sensor_rotation': _spec('sensor_rotation', "Rotation of the F/T sensor's frame in the "
-                             'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
+                                  'rotation of master_frame in arm_frame (needs tf2_ros). '
+                                  'Fixed: the TF listener is created at start-up.'),
+    'sensor_rotation': _tunable('sensor_rotation', "Rotation of the F/T sensor's frame in the "
+                                'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
     'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
-                          'base_frame.'),
+                          "base_frame. Fixed: the wrench's header is laid out once."),
     'arm_frame': _spec('arm_frame', 'frame_id of measured_cp, servo_cp and servo_cv: the '
-                       "arm's base frame."),
-    'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame.'),
-    'workspace_min': _spec('workspace_min', "Lower corner of the box the arm's target stays "
-                           'in (m, arm base frame).'),
-    'workspace_max': _spec('workspace_max', 'Upper corner of that box (m).'),
-    'max_linear_speed': _spec('max_linear_speed', "Speed limit of the arm's target (m/s).",
-                              low=0.001, high=10.0),
-    'max_angular_speed': _spec('max_angular_speed', "Angular speed limit of the arm's target "
-                               '(rad/s).', low=0.001, high=100.0),
-    'twist_gain': _spec('twist_gain', 'Twist mode: servo_cv = gain * (target - measured), '
-                        '(1/s).', low=0.001, high=1000.0),
-    'master_timeout': _spec('master_timeout', 'An older pose holds the arm (s).',
+                       "arm's base frame. Fixed: servo_cp's header is laid out once."),
+    'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame. Fixed, as '
+                      'the other frames: a frame is wiring, not a tuning.'),
+    'workspace_min': _tunable('workspace_min', "Lower corner of the box the arm's target "
+                              'stays in (m, arm base frame).'),
+    'workspace_max': _tunable('workspace_max', 'Upper corner of that box (m).'),
+    'max_linear_speed': _tunable('max_linear_speed', "Speed limit of the arm's target (m/s).",
+                                 low=0.001, high=10.0),
+    'max_angular_speed': _tunable('max_angular_speed', "Angular speed limit of the arm's "
+                                  'target (rad/s).', low=0.001, high=100.0),
+    'twist_gain': _tunable('twist_gain', 'Twist mode: servo_cv = gain * (target - measured), '
+                           '(1/s).', low=0.001, high=1000.0),
+    'master_timeout': _tunable('master_timeout', 'An older pose holds the arm (s).',
+                               low=0.001, high=10.0),
+    'arm_timeout': _tunable('arm_timeout', 'An older measured_cp is a FAULT (s).',
                             low=0.001, high=10.0),
-    'arm_timeout': _spec('arm_timeout', 'An older measured_cp is a FAULT (s).',
-                         low=0.001, high=10.0),
-    'ft_timeout': _spec('ft_timeout', 'An older measured_cf is a FAULT (s).',
-                        low=0.001, high=10.0),
-    'max_tracking_error': _spec('max_tracking_error', 'measured_cp farther from the command '
-                                'is a FAULT (m).', low=0.0001, high=10.0),
-    'max_tracking_angle': _spec('max_tracking_angle', 'measured_cp turned farther from the '
-                                'command is a FAULT (rad).', low=0.0001, high=math.pi),
-    'force_feedback': _spec('force_feedback', 'Reflect measured_cf to the master; false: no '
-                            'F/T sensor, zero wrench.'),
-    'tool_mass': _spec('tool_mass', 'Mass of the tool beyond the sensor (kg).',
-                       low=0.0, high=100.0),
-    'tool_com': _spec('tool_com', "The tool's centre of mass (m, sensor frame)."),
-    'gravity': _spec('gravity', 'Gravity (m/s^2, arm base frame).'),
-    'force_scale': _spec('force_scale', 'Master force per arm force (1).', low=0.0, high=100.0),
-    'moment_scale': _spec('moment_scale', 'Master moment per arm moment (1).',
+    'ft_timeout': _tunable('ft_timeout', 'An older measured_cf is a FAULT (s).',
+                           low=0.001, high=10.0),
+    'max_tracking_error': _tunable('max_tracking_error', 'measured_cp farther from the '
+                                   'command is a FAULT (m).', low=0.0001, high=10.0),
+    'max_tracking_angle': _tunable('max_tracking_angle', 'measured_cp turned farther from the '
+                                   'command is a FAULT (rad).', low=0.0001, high=math.pi),
+    'force_feedback': _tunable('force_feedback', 'Reflect measured_cf to the master; false: '
+                               'no F/T sensor, zero wrench.'),
+    'tool_mass': _tunable('tool_mass', 'Mass of the tool beyond the sensor (kg).',
                           low=0.0, high=100.0),
-    'force_deadband': _spec('force_deadband', 'Forces below this are not reflected (N, '
-                            'master side).', low=0.0, high=100.0),
-    'moment_deadband': _spec('moment_deadband', 'Moments below this are not reflected (N*m).',
-                             low=0.0, high=10.0),
-    'force_cutoff_hz': _spec('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
-                             'wrench (Hz); 0: none.', low=0.0, high=1000.0),
-    'max_force': _spec('max_force', 'Largest force sent to the master (N).',
-                       low=0.0, high=200.0),
-    'max_moment': _spec('max_moment', 'Largest moment sent to the master (N*m).',
-                        low=0.0, high=20.0),
-    'max_input_force': _spec('max_input_force', 'A larger measured_cf force is refused (N).',
-                             low=1.0, high=1e5),
-    'max_input_moment': _spec('max_input_moment', 'A larger measured_cf moment is refused '
-                              '(N*m).', low=0.1, high=1e4),
-    'max_input_position': _spec('max_input_position', 'A pose or measured_cp farther from its '
-                                'base is refused (m).', low=0.1, high=1000.0),
-    'passivity': _spec('passivity', "Time-domain passivity control of the arm's command, fed "
-                       'by master_energy.'),
-    'drift_gain': _spec('drift_gain', 'Rate at which passivity drift is given back (1/s).',
-                        low=0.0, high=1000.0),
+    'tool_com': _tunable('tool_com', "The tool's centre of mass (m, sensor frame)."),
+    'gravity': _tunable('gravity', 'Gravity (m/s^2, arm base frame).'),
+    'force_scale': _tunable('force_scale', 'Master force per arm force (1).',
+                            low=0.0, high=100.0),
+    'moment_scale': _tunable('moment_scale', 'Master moment per arm moment (1).',
+                             low=0.0, high=100.0),
+    'force_deadband': _tunable('force_deadband', 'Forces below this are not reflected (N, '
+                               'master side).', low=0.0, high=100.0),
+    'moment_deadband': _tunable('moment_deadband', 'Moments below this are not reflected '
+                                '(N*m).', low=0.0, high=10.0),
+    'force_cutoff_hz': _tunable('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
+                                'wrench (Hz); 0: none.', low=0.0, high=1000.0),
+    'max_force': _tunable('max_force', 'Largest force sent to the master (N).',
+                          low=0.0, high=200.0),
+    'max_moment': _tunable('max_moment', 'Largest moment sent to the master (N*m).',
+                           low=0.0, high=20.0),
+    'max_input_force': _tunable('max_input_force', 'A larger measured_cf force is refused '
+                                '(N).', low=1.0, high=1e5),
+    'max_input_moment': _tunable('max_input_moment', 'A larger measured_cf moment is refused '
+                                 '(N*m).', low=0.1, high=1e4),
+    'max_input_position': _tunable('max_input_position', 'A pose or measured_cp farther from '
+                                   'its base is refused (m).', low=0.1, high=1000.0),
+    'passivity': _tunable('passivity', "Time-domain passivity control of the arm's command, "
+                          'fed by master_energy; a change registers anew.'),
+    'drift_gain': _tunable('drift_gain', 'Rate at which passivity drift is given back (1/s).',
+                           low=0.0, high=1000.0),
     'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
-                            'files); false: wait for the enable service.'),
-    'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic.',
+                            'files); false: wait for the enable service. Fixed: it acts at '
+                            'start-up.'),
+    'clutch_button': Spec(-1, 'Index of the joy button that clutches; -1: no joy topic. '
+                          'Fixed: the joy subscription exists only with a button.',
                           low=-1, high=127),
     'input_priority': Spec(0, 'SCHED_FIFO priority of the thread that takes the streaming '
                            "inputs and sends servo_cp, servo_cv and wrench, the executor's "
-                           'thread one below; 0: normal scheduling.', low=0, high=98),
+                           'thread one below; 0: normal scheduling. Fixed: set as that thread '
+                           'starts.', low=0, high=98),
 }

@@ -7,10 +7,15 @@ from harness import REPO
 
 
 def table_rows(page, heading):
-    """Return {name: (default, range)} of the parameter table in `page`'s section `heading`."""
+    """
+    Return {name: (default, range, run-time)} of the parameter table in section `heading`.
+
+    run-time is the cell of a run-time column (yes or no), None in a table without one.
+    """
     section = page.split(f'\n## {heading}\n', 1)[1].split('\n## ', 1)[0]
-    return {m.group(1): (m.group(2).strip(), m.group(3).strip()) for m in re.finditer(
-        r'^\| `([a-z_.]+)` \| ([^|]+) \| ([^|]*) \| [^|]+ \|$', section, re.MULTILINE)}
+    return {m.group(1): (m.group(2).strip(), m.group(3).strip(), m.group(4)) for m in re.finditer(
+        r'^\| `([a-z_.]+)` \| ([^|]+) \| ([^|]*) \| (?:(yes|no) \| )?[^|]+ \|$', section,
+        re.MULTILINE)}
 
 
 def _number(value):
@@ -29,11 +34,12 @@ def _shown(value):
     return f'`{value}`' if isinstance(value, str) else f'`{_number(value)}`'
 
 
-def expected_row(spec):
-    """Return the (default, range) cells a parameter's Spec gives."""
+def expected_row(spec, run_time_column=False):
+    """Return the (default, range, run-time) cells a parameter's Spec gives."""
     bounds = (', '.join(spec.choices) if spec.choices
               else '' if spec.low is None else f'{_number(spec.low)} .. {_number(spec.high)}')
-    return _shown(spec.default), bounds
+    run_time = ('no' if spec.read_only else 'yes') if run_time_column else None
+    return _shown(spec.default), bounds, run_time
 
 
 def undefined_tests(page, test_files):

@@ -483,6 +483,8 @@ class LinkFault(NamedTuple):
     log: str  # regex of the driver's message
     repeat: Callable = no_action  # called every few ms while the fault lasts
     link_down: bool = False  # the link is lost: diagnostics report ERROR, then a reconnect
+    # The simulator's stats counter of the fault taking effect: the fault lasts until it grows.
+    effect: str | None = None
 
 
 LINK_FAULTS = [
@@ -490,25 +492,41 @@ LINK_FAULTS = [
               SimulatedKraftMaster.replug, ('link link_faults',), r'link.*(down|lost|fail)',
               link_down=True),
     LinkFault('1 reply in 10 dropped', set_rate('drop_reply_rate', 0.1), FAULT_S,
-              set_rate('drop_reply_rate', 0.0), ('link timeouts',), r'time(d )?out|no reply'),
+              set_rate('drop_reply_rate', 0.0), ('link timeouts',), r'time(d )?out|no reply',
+              effect='dropped'),
     LinkFault('corrupt bytes at 1e-3', set_rate('corrupt_byte_rate', 1e-3), FAULT_S,
-              set_rate('corrupt_byte_rate', 0.0), DECODER_ERRORS, r'crc|corrupt'),
+              set_rate('corrupt_byte_rate', 0.0), DECODER_ERRORS, r'crc|corrupt',
+              effect='corrupted_bytes'),
     LinkFault('corrupt bytes at 1e-2', set_rate('corrupt_byte_rate', 1e-2), FAULT_S,
-              set_rate('corrupt_byte_rate', 0.0), DECODER_ERRORS, r'crc|corrupt'),
+              set_rate('corrupt_byte_rate', 0.0), DECODER_ERRORS, r'crc|corrupt',
+              effect='corrupted_bytes'),
     LinkFault('device stalls 200 ms', lambda simulator: simulator.stall(200), 0.2, no_action,
               ('link timeouts',), r'time(d )?out|no reply'),
     LinkFault('garbage flood', no_action, FAULT_S, no_action, ('link garbage_bytes',),
-              r'garbage', repeat=lambda simulator: simulator.send_garbage(GARBAGE_BYTES)),
+              r'garbage', repeat=lambda simulator: simulator.send_garbage(GARBAGE_BYTES),
+              effect='garbage_sent'),
 ]
 
 
-def hold_fault(session, fault):
-    """Keep `fault` up for its duration; return when the device's own watchdog fired (ns)."""
+def hold_fault(session, fault, effects_before):
+    """
+    Keep `fault` up; return when the device's own watchdog fired (ns), or None.
+
+    It lasts fault.seconds, and beyond them (WAIT_S at most) until the device's count of
+    fault.effect has grown past `effects_before`: a busy machine exchanges fewer replies in
+    that time, and the simulator's seeded draws may hit none of them (a fresh fault random
+    corrupts byte 3480 first at 1e-3: reply 194, 1 s at 200 Hz).
+    """
     simulator = session.simulator
     device_timeouts = simulator.stats['timeouts']
     watchdog_ns = None
     end = time.monotonic() + fault.seconds
-    while time.monotonic() < end:
+
+    def lasting():
+        now = time.monotonic()
+        taken = fault.effect is None or simulator.stats[fault.effect] > effects_before
+        return now < end or (not taken and now < end + WAIT_S)
+    while lasting():
         fault.repeat(simulator)
         session.client.spin(0.01)
         if watchdog_ns is None and simulator.stats['timeouts'] > device_timeouts:
@@ -536,9 +554,10 @@ class Injected(NamedTuple):
 def inject_link_fault(session, fault):
     """Start `fault`, hold it, clear it and wait for torque again; return the Injected."""
     simulator = session.simulator
+    effects_before = simulator.stats[fault.effect] if fault.effect else None
     fault_ns = time.time_ns()
     fault.start(simulator)
-    watchdog_ns = hold_fault(session, fault)
+    watchdog_ns = hold_fault(session, fault, effects_before)
     clear_ns = time.time_ns()
     fault.clear(simulator)
     back_ns = session.wait_command(clear_ns, zero=False)

@@ -8,6 +8,7 @@ import shlex
 
 from ament_index_python.packages import get_package_prefix, PackageNotFoundError
 from harness import PACKAGE, REPO
+from kraft_master_driver.nodes import driver_parameters, teleop_parameters
 from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names
 import pytest
@@ -19,6 +20,9 @@ launch_ros_actions = pytest.importorskip('launch_ros.actions', reason=NOT_HERE)
 launch_ros_utilities = pytest.importorskip('launch_ros.utilities', reason=NOT_HERE)
 
 LAUNCH_DIR = REPO / 'launch'
+DOC_PAGES = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]
+PARAMETER_TABLES = {'kraft_master_node': driver_parameters.PARAMETERS,
+                    'kraft_master_teleop': teleop_parameters.PARAMETERS}
 SYSTEM_PREFIXES = os.environ.get('AMENT_PREFIX_PATH', '')
 
 
@@ -128,8 +132,7 @@ def test_launch_description_declares_its_arguments(installed_share, file_name, a
 
 def readme_launch_commands():
     """Return (launch file, {argument: value}) of each `ros2 launch` line of README and doc/."""
-    pages = [REPO / 'README.md', *sorted((REPO / 'doc').glob('*.md'))]
-    blocks = [block for page in pages for block in re.findall(
+    blocks = [block for page in DOC_PAGES for block in re.findall(
         r'```\n(.*?)```', page.read_text().replace('\\\n', ' '), re.DOTALL)]
     commands = []
     for block in blocks:
@@ -354,3 +357,42 @@ def test_teleop_demo_runs_two_pandas_on_two_simulated_masters(installed_share):
     passed = included_arguments(context, include)
     assert {k: passed[k] for k in ('arms', 'right_port', 'left_port', 'arm_model')} == {
         'arms': 'both', 'right_port': 'sim', 'left_port': 'sim', 'arm_model': 'panda'}
+
+
+@pytest.mark.parametrize('rate_command', ['false', 'true'])
+def test_each_driver_publishes_rate_command_only_with_the_rate_command_argument(
+        installed_share, rate_command):
+    # teleop.launch.py hands the argument to the driver's launch file, which gives it to each
+    # driver: without it, the driver advertises no rate_command.
+    started = []
+    context = start_in_launch_order(load('teleop.launch.py').generate_launch_description(),
+                                    started, arms='both', right_port='sim', left_port='sim',
+                                    rate_command=rate_command)
+    drivers = [node for node in started if node.node_executable == 'kraft_master_node']
+    assert len(drivers) == 2
+    assert [node_parameters(context, node)[1]['rate_command_enabled'] for node in drivers] == [
+        rate_command == 'true'] * 2
+
+
+def doc_param_set_commands():
+    """Return (node, parameter) of each `ros2 param set` command in README and doc/."""
+    pages = '\n'.join(page.read_text().replace('\\\n', ' ') for page in DOC_PAGES)
+    return re.findall(r'^ros2 param set (\S+) (\S+)|`ros2 param set (\S+) (\S+) [^`]*`', pages,
+                      re.MULTILINE)
+
+
+def test_the_docs_param_set_commands_name_a_launched_node_and_a_settable_parameter(
+        installed_share):
+    started = []
+    context = start_in_launch_order(load('teleop.launch.py').generate_launch_description(),
+                                    started, arms='both', right_port='sim', left_port='sim')
+    launched = {f'/{text(context, node._Node__node_namespace)}/{node.node_executable}'
+                for node in started}
+    commands = [tuple(filter(None, found)) for found in doc_param_set_commands()]
+    assert ('/right/kraft_master_teleop', 'scale') in commands
+    for node, name in commands:
+        namespace, executable = node.rsplit('/', 1)
+        # A node in a namespace is one the launch file starts; one at the root, `ros2 run`'s.
+        assert not namespace or node in launched, f'no launch file starts {node}'
+        spec = PARAMETER_TABLES[executable].get(name)
+        assert spec is not None and not spec.read_only, f'{node} {name} is not settable'

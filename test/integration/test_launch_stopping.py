@@ -25,6 +25,10 @@ from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools.urdf_model import driver_names
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 NOT_HERE = ('launch and launch_ros cannot be installed on this machine: they are not on PyPI '
@@ -225,3 +229,36 @@ def test_the_panda_behind_the_bridge_is_felt_on_its_table_and_stops_with_the_lau
         launch.close()
         for client in clients.values():
             client.close()
+
+
+def test_the_bridge_takes_param_set_while_following_and_stops_with_the_launch(
+        install_prefix, tmp_path):
+    # As `ros2 param set /right/kraft_master_teleop scale 2` does, under teleop.launch.py.
+    domain_id = next_domain_id()
+    client = RosClient(domain_id, namespace='/right')
+    states = []
+    client.node.create_subscription(String, 'operating_state', lambda m: states.append(m.data),
+                                    QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                               durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    launch = run_launch_file(install_prefix, domain_id, tmp_path / 'launch.log',
+                             'teleop.launch.py', right_port='sim', sim_operator='sweep')
+    try:
+        client.wait(lambda: states and states[-1] == 'ENABLED')
+        parameters = AsyncParameterClient(client.node, '/right/kraft_master_teleop')
+        assert parameters.wait_for_services(timeout_sec=WAIT_S)
+        for name, value, reason in (('scale', 2.0, None), ('force_scale', 0.5, None),
+                                    ('mode', 'twist', 'Trying to set a read-only parameter: '
+                                     'mode.')):
+            future = parameters.set_parameters([Parameter(name, value=value)])
+            client.wait(future.done)
+            (result,) = future.result().results
+            assert (result.successful, result.reason or None) == (reason is None, reason)
+        future = parameters.get_parameters(['scale', 'force_scale'])
+        client.wait(future.done)
+        assert [value.double_value for value in future.result().values] == [2.0, 0.5]
+        assert states[-1] == 'ENABLED'
+        end(launch, 'Ctrl-C')
+        assert_every_process_ended_well(launch, 'Ctrl-C')
+    finally:
+        launch.close()
+        client.close()

@@ -375,6 +375,36 @@ def test_integers_are_accepted_for_double_parameters(install_prefix, tmp_path):
         running.close()
 
 
+def test_rate_command_is_advertised_only_once_enabled(install_prefix):
+    running = Session(install_prefix)  # rate_command_enabled false
+    try:
+        client = running.client
+        others = {'/joint_states', '/pose', '/pots', '/master_energy', '/diagnostics'}
+
+        def published():
+            node = client.node
+            if ('kraft_master_node', '/') not in node.get_node_names_and_namespaces():
+                return set()
+            return {name for name, _ in node.get_publisher_names_and_types_by_node(
+                'kraft_master_node', '/')}
+        # Everything else the driver publishes is in the graph; rate_command is not.
+        client.wait(lambda: others <= published())
+        assert '/rate_command' not in published()
+        parameters = AsyncParameterClient(client.node, '/kraft_master_node')
+        assert parameters.wait_for_services(timeout_sec=20.0)
+        result = call(client, parameters.set_parameters(
+            [Parameter('rate_command_enabled', value=True)])).results[0]
+        assert result.successful, result.reason
+        client.wait(lambda: '/rate_command' in published())
+        # Set false again, the topic stays: the loop thread may be publishing on it.
+        result = call(client, parameters.set_parameters(
+            [Parameter('rate_command_enabled', value=False)])).results[0]
+        assert result.successful, result.reason
+        assert '/rate_command' in published()
+    finally:
+        running.close()
+
+
 def test_a_negative_integer_gets_the_range_error(install_prefix):
     driver = DriverProcess(install_prefix, next_domain_id(), [('loop_rate_hz', '-5')])
     code, output = driver.wait_exit()

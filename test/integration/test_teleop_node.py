@@ -6,9 +6,16 @@ import importlib.util
 import math
 
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
-from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for
+from harness.driver import DriverProcess, next_domain_id, RosClient, wait_for, WAIT_S
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.teleoperation_tuning import RAMP_S
+from kraft_master_driver.nodes.teleop_parameters import PARAMETERS
+from kraft_master_driver.simulation.master.model import Workspace
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Joy
 from std_msgs.msg import Bool, String
@@ -182,7 +189,13 @@ def start_bridge(install_prefix):
 def enabled(rig):
     """Enable and wait until following: the first servo_cp after enable has come."""
     rig.servo_cp.clear()
-    response = rig.enable()
+
+    def answered():
+        # Matched on the rig's side is not yet heard on the bridge's: until every input has
+        # reached the bridge, enable says 'no fresh ...'; any other answer is the answer.
+        response = rig.enable()
+        return response if response.success or 'no fresh' not in response.message else None
+    response = rig.run_until(answered)
     assert response.success, response.message
     rig.run_until(lambda: rig.servo_cp)
     return rig
@@ -407,3 +420,161 @@ def test_base_rotation_from_tf_turns_master_motion_at_enable(start_bridge):
     # The master's +x is the arm's +y.
     rig.run_until(lambda: np.allclose(positions([rig.servo_cp[-1]])[0],
                                       ARM_HOME + (0.0, 0.02, 0.0), atol=1e-9))
+    # base_rotation is TF's: a set of it is refused.
+    parameters = AsyncParameterClient(rig.client.node, '/kraft_master_teleop')
+    assert parameters.wait_for_services(timeout_sec=WAIT_S)
+    result = set_while_moving(rig, parameters, 'base_rotation', [0.0, 0.0, 0.0])
+    assert (result.successful, result.reason) == (
+        False, 'parameter base_rotation is taken from TF (base_rotation_from_tf)')
+
+
+# -- parameters set while following -----------------------------------------------------------
+
+# A new value of every parameter settable at run time, none stricter than the rig can meet.
+RUN_TIME_VALUES = {
+    'scale': 2.0, 'orientation': 'fixed', 'base_rotation': [0.0, 0.0, 0.3],
+    'sensor_rotation': [0.0, 0.0, 0.5], 'workspace_min': [-1.0, -1.0, -1.0],
+    'workspace_max': [1.0, 1.0, 1.0], 'max_linear_speed': 1.0, 'max_angular_speed': 2.0,
+    'twist_gain': 20.0, 'master_timeout': 1.0, 'arm_timeout': 3.0, 'ft_timeout': 3.0,
+    'max_tracking_error': 0.1, 'max_tracking_angle': 0.6, 'tool_mass': 0.5,
+    'tool_com': [0.0, 0.0, 0.05], 'gravity': [0.0, 0.0, -9.8], 'force_scale': 3.0,
+    'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1, 'force_cutoff_hz': 5.0,
+    'max_force': 2.0, 'max_moment': 0.2, 'max_input_force': 500.0, 'max_input_moment': 50.0,
+    'max_input_position': 5.0, 'passivity': True, 'drift_gain': 5.0, 'force_feedback': False}
+# A steady contact along z, across the master's motion along x (no work for passivity to
+# book), with a moment about z.
+PRESSED = np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.2])
+MASTER_STEP = np.array([5e-6, 0.0, 0.0])  # m per published pose
+
+
+def pot_count_travel():
+    """Return the least wrist travel (m) of one count of POT1..POT3 at the master's home."""
+    calibration = ArmCalibration.nominal('right')
+    theta = Workspace().home()
+    pots = calibration.joints_to_pots(theta)
+    home = kinematics.forward(theta, 'right')[:3, 3]
+    return min(np.linalg.norm(kinematics.forward(calibration.pots_to_joints(
+        pots + np.eye(6)[pot]), 'right')[:3, 3] - home) for pot in range(3))
+
+
+POT_COUNT_TRAVEL = pot_count_travel()  # about 0.14 mm
+# The wrench is ramped on the bridge's monotonic clock and stamped on its system clock, a
+# moment apart: two wrenches may be this much further apart on the one than on the other (s).
+STAMP_SLACK_S = 0.05
+
+
+def wrench_values(messages):
+    """Return the forces and moments of WrenchStamped messages as an (n, 6) array."""
+    return np.array([(m.wrench.force.x, m.wrench.force.y, m.wrench.force.z,
+                      m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z)
+                     for m in messages])
+
+
+def stamps(messages):
+    """Return the header stamps of messages in seconds."""
+    return np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in messages])
+
+
+def since(messages, start):
+    """Return the messages stamped at or after `start` (s)."""
+    return [m for m, stamp in zip(messages, stamps(messages)) if stamp >= start]
+
+
+def moving_until(rig, condition):
+    """Publish, the master moving on by MASTER_STEP each time, until `condition()` holds."""
+    def step_and_check():
+        rig.master = rig.master + MASTER_STEP
+        rig.publish()
+        return condition()
+    return wait_for(step_and_check, spin=lambda: rig.client.spin(0.003))
+
+
+def set_while_moving(rig, parameters, name, value):
+    """Set parameter `name` while the master moves; return the SetParametersResult."""
+    future = parameters.set_parameters([Parameter(name, value=value)])
+    moving_until(rig, future.done)
+    return future.result().results[0]
+
+
+@pytest.fixture
+def following(start_bridge):
+    """Yield (rig, parameter client): following, the master moved 5 cm, pressed by PRESSED."""
+    rig, _ = start_bridge([('max_force', '20.0'), ('max_moment', '2.0')])
+    # Until the bridge has heard every stream: matched on the rig's side is not yet on its own.
+    rig.run_until(lambda: rig.enable().success)
+    rig.run_until(lambda: rig.servo_cp)
+    rig.move_master((0.05, 0.0, 0.0))  # far from where it registered
+    rig.reading = PRESSED
+    rig.run_until(lambda: np.allclose(wrench_values([rig.wrenches[-1]])[0], PRESSED))
+    parameters = AsyncParameterClient(rig.client.node, '/kraft_master_teleop')
+    assert parameters.wait_for_services(timeout_sec=WAIT_S)
+    yield rig, parameters
+
+
+def test_run_time_values_cover_every_settable_parameter():
+    assert set(RUN_TIME_VALUES) == {name for name, spec in PARAMETERS.items()
+                                    if not spec.read_only}
+
+
+@pytest.mark.slow
+def test_every_run_time_parameter_is_set_while_following_without_a_jump_or_a_kick(following):
+    rig, parameters = following
+    worst = (0.0, '')
+    for name, value in RUN_TIME_VALUES.items():
+        # Not rig.forget(): the rig's arm is where the last kept servo_cp sent it.
+        start = rig.client.node.get_clock().now().nanoseconds * 1e-9
+        moving_until(rig, lambda: len(since(rig.wrenches, start)) > 3)
+        result = set_while_moving(rig, parameters, name, value)
+        assert result.successful, f'{name}: {result.reason}'
+        ramped_at = rig.client.node.get_clock().now().nanoseconds * 1e-9 + RAMP_S
+        moving_until(rig, lambda: stamps(rig.wrenches)[-1] > ramped_at)
+        assert rig.state() == 'ENABLED', f'{name}: {rig.state()}'
+        commands, wrenches = since(rig.servo_cp, start), since(rig.wrenches, start)
+        steps = np.linalg.norm(np.diff(positions(commands), axis=0), axis=1)
+        assert steps.max() < POT_COUNT_TRAVEL, f'{name}: the target jumped {steps.max():.6f} m'
+        times, wrenches = stamps(wrenches), wrench_values(wrenches)
+        change = np.abs(wrenches[-1] - wrenches[0])
+        allowed = np.outer(np.diff(times) + STAMP_SLACK_S, change) / RAMP_S + 1e-9
+        kicks = np.abs(np.diff(wrenches, axis=0))
+        assert np.all(kicks <= allowed), (
+            f'{name}: the wrench stepped {kicks.max(axis=0).tolist()} of {change.tolist()}')
+        changed = change > 1e-6
+        if np.any(changed):
+            worst = max(worst, (np.max(kicks[:, changed] / change[changed]), name))
+    print(f'largest wrench step: {worst[0]:.3f} of a change ({worst[1]}); target steps under '
+          f'{1e3 * POT_COUNT_TRAVEL:.3f} mm')
+    (value,) = call_parameters(rig, parameters.get_parameters(['force_feedback'])).values
+    assert value.bool_value is False
+
+
+def call_parameters(rig, future):
+    """Publish until `future` is done; return its result."""
+    rig.run_until(future.done)
+    return future.result()
+
+
+@pytest.mark.parametrize('name, value, reason', [
+    ('workspace_min', [3.0, 3.0, 3.0], 'parameter workspace_min must be below workspace_max on '
+     'every axis, got [3.0, 3.0, 3.0] and [2.0, 2.0, 2.0]'),
+    ('base_rotation', [0.0, 0.0, 0.0, 2.0], 'parameter base_rotation: the quaternion '
+     '[0.0, 0.0, 0.0, 2.0] is not of unit length'),
+    ('orientation', 'loose', "parameter orientation: 'loose' is not one of follow, fixed, "
+     'ignore'),
+    ('mode', 'twist', 'Trying to set a read-only parameter: mode.'),
+])
+def test_a_refused_set_changes_nothing(following, name, value, reason):
+    rig, parameters = following
+    (before,) = call_parameters(rig, parameters.get_parameters([name])).values
+    start = rig.client.node.get_clock().now().nanoseconds * 1e-9
+    result = set_while_moving(rig, parameters, name, value)
+    assert (result.successful, result.reason) == (False, reason)
+    (after,) = call_parameters(rig, parameters.get_parameters([name])).values
+    assert after == before
+    # Still following at scale 1 along x, the same wrench.
+    moving_until(rig, lambda: len(since(rig.servo_cp, start)) > 10)
+    steps = np.diff(positions(since(rig.servo_cp, start)), axis=0)
+    np.testing.assert_allclose(steps[:, 1:], 0.0, atol=1e-12)
+    assert steps[:, 0].max() < POT_COUNT_TRAVEL
+    np.testing.assert_allclose(wrench_values(since(rig.wrenches, start)) - PRESSED, 0.0,
+                               atol=1e-12)
+    assert rig.state() == 'ENABLED'

@@ -16,7 +16,8 @@ CASES = [(heading, name) for heading, parameters in TABLES.items() for name in p
 def test_every_parameter_is_in_the_table_with_its_default_and_range(heading, name):
     rows = ROWS[heading]
     assert name in rows, f'doc/bridge.md, {heading}: no row for parameter {name}'
-    assert rows[name] == expected_row(TABLES[heading][name])
+    # The bridge's table says which parameters are settable at run time; the arm's are not.
+    assert rows[name] == expected_row(TABLES[heading][name], heading == 'Parameters')
 
 
 @pytest.mark.parametrize('heading', TABLES)

@@ -19,6 +19,9 @@ README = (REPO / 'README.md').read_text()
 INTERFACE = (DOC / 'ros-interface.md').read_text()
 ROWS = {m.group(1): m.groups()[1:] for m in re.finditer(
     r'^\| `([a-z_.]+)` \| ([a-z\[\]0-9]+) \| ([^|]+) \| ([^|]*) \|', INTERFACE, re.MULTILINE)}
+RUN_TIME = {m.group(1): m.group(2) for m in re.finditer(
+    r'^\| `([a-z_.]+)` \| [a-z\[\]0-9]+ \| [^|]+ \| [^|]* \| (yes|no) \|', INTERFACE,
+    re.MULTILINE)}
 
 
 def number(value):
@@ -57,6 +60,11 @@ def test_every_parameter_is_in_the_readme_table_with_its_default(name):
     kind, default, bounds = (cell.strip() for cell in ROWS[name])
     assert (kind, default, bounds) == (
         readme_type(spec.default), readme_default(spec.default), readme_range(spec))
+
+
+@pytest.mark.parametrize('name', PARAMETERS)
+def test_the_run_time_column_says_whether_the_parameter_is_settable(name):
+    assert RUN_TIME.get(name) == ('no' if PARAMETERS[name].read_only else 'yes')
 
 
 def test_integers_show_as_integers():

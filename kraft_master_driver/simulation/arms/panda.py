@@ -20,8 +20,8 @@ with e the tool's pose error (position and rotation vector, arm base frame), D =
 the nullspace pulling toward the posture q_n, and Coriolis and gravity compensated as a Franka
 does by itself; the change of tau is limited to Franka's 1000 N*m/s and tau to its joint torque
 limits. MuJoCo enforces the joint ranges. The target comes from command_pose() (servo_cp) or is
-moved by command_twist() (servo_cv); a command older than command_timeout, or none, holds the
-arm still where it is measured.
+moved by command_twist() (servo_cv); a command command_timeout old or older, or none, holds
+the arm still where it is measured.
 """
 import importlib.util
 import math
@@ -51,6 +51,10 @@ ARMATURE = 0.1
 TABLE_TOP_THICKNESS = 0.03  # m
 TABLE_TOP_MASS = 1.0  # kg: with the default spring and damping, 23 Hz, damping ratio 0.35
 SINGULARITY_GUARD = 1e-6 * np.eye(6)  # m^2 added to J J^T's diagonal
+# s: ROS time's resolution. A command's age is compared to command_timeout to within it, so
+# the rounding of a clock summed 1 ms at a time (1e-14 s at 1 s, 1e-11 s at 10 s) cannot
+# decide whether a command exactly command_timeout old is stale.
+CLOCK_RESOLUTION = 1e-9
 
 
 class ArmModelMissing(RuntimeError):
@@ -356,18 +360,22 @@ class PandaArm:
         self._twist_command = (linear, angular, now)
         return None
 
+    def _fresh(self, received, now):
+        """Return whether a command received at `received` is younger than command_timeout."""
+        return now - received < self.command_timeout - CLOCK_RESOLUTION
+
     def _update_target(self, now, dt):
         """Follow the fresh command; hold still where measured when it goes stale."""
         if self._pose_command is not None:
             position, rotation, received = self._pose_command
-            if now - received <= self.command_timeout:
+            if self._fresh(received, now):
                 self.target_position, self.target_rotation = position, rotation
                 self.holding = False
                 return
             self._pose_command = None
         elif self._twist_command is not None:
             linear, angular, received = self._twist_command
-            if now - received <= self.command_timeout:
+            if self._fresh(received, now):
                 self.target_position = self.target_position + linear * dt
                 self.target_rotation = rotation_from_vector(angular * dt) @ self.target_rotation
                 self.holding = False

@@ -6,6 +6,7 @@ import math
 from kraft_master_driver.core.rotations import quaternion_to_rotation
 from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
 from kraft_master_driver.core.teleoperation_settings import Settings
+from kraft_master_driver.core.teleoperation_tuning import RAMP_S
 import numpy as np
 import pytest
 
@@ -513,3 +514,133 @@ def test_enable_is_refused_without_a_base_rotation_from_tf():
     assert session.bridge.enable(session.now, lambda: (0.0, 0.0, 0.0, 2.0)).refusal == (
         'TF base_rotation: the quaternion [0.0, 0.0, 0.0, 2.0] is not of unit length: '
         'not enabled')
+
+
+# -- settings changed while following (configure) ----------------------------------------------
+
+# A new value for every setting a running bridge takes (all but mode and the frames).
+NEW_VALUES = {
+    'scale': 2.0, 'orientation': 'fixed', 'base_rotation': (0.0, 0.0, 0.3),
+    'sensor_rotation': (0.0, 0.0, 0.5), 'workspace_min': (-1.0, -1.0, -1.0),
+    'workspace_max': (1.0, 1.0, 1.0), 'max_linear_speed': 1.0, 'max_angular_speed': 2.0,
+    'twist_gain': 20.0, 'master_timeout': 0.2, 'arm_timeout': 0.2, 'ft_timeout': 0.2,
+    'max_tracking_error': 0.1, 'max_tracking_angle': 0.6, 'force_feedback': False,
+    'tool_mass': 0.5, 'tool_com': (0.0, 0.0, 0.05), 'gravity': (0.0, 0.0, -9.8),
+    'force_scale': 3.0, 'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1,
+    'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'max_input_force': 500.0,
+    'max_input_moment': 50.0, 'max_input_position': 5.0, 'passivity': True, 'drift_gain': 5.0}
+PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
+MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
+
+
+def test_new_values_cover_every_setting_but_mode_and_the_frames():
+    fixed = {'mode', 'master_frame', 'arm_frame', 'ft_frame'}
+    assert set(NEW_VALUES) == set(Settings._fields) - fixed
+
+
+def following_with_contact(**settings):
+    """Return a session following, the master moving along x, pressed by PRESSED."""
+    session = Session(max_force=20.0, max_moment=2.0, **settings).enabled()
+    for step in range(1, 51):
+        session.follow(step * MASTER_STEP, reading=PRESSED)
+    return session
+
+
+def run_on(session, steps):
+    """Move the master on by `steps` steps; return the commands and wrenches (one per step)."""
+    commands, wrenches = [], []
+    for _ in range(steps):
+        commands.append(session.follow(session.master + MASTER_STEP).position)
+        wrenches.append(session.bridge.master_wrench(session.now))
+    return np.array(commands), np.array(wrenches)
+
+
+@pytest.mark.parametrize('name', NEW_VALUES)
+def test_a_change_while_following_moves_no_target_and_steps_no_wrench(name):
+    session = following_with_contact()
+    bridge = session.bridge
+    before = (run_on(session, 1)[0][0], bridge.master_wrench(session.now))
+    bridge.configure(bridge.settings._replace(**{name: NEW_VALUES[name]}), session.now)
+    assert getattr(bridge.settings, name) == NEW_VALUES[name]
+    commands, wrenches = run_on(session, 700)  # past RAMP_S
+    assert bridge.state is OperatingState.ENABLED
+    commands, wrenches = np.vstack([before[0], commands]), np.vstack([before[1], wrenches])
+    # Each target one master step on, at the larger scale: no jump, no drift.
+    steps = np.linalg.norm(np.diff(commands, axis=0), axis=1)
+    assert steps.max() <= 2.0 * np.linalg.norm(MASTER_STEP) + 1e-12
+    # Each wrench at most DT / RAMP_S of the whole change from the one before.
+    change = np.abs(wrenches[-1] - wrenches[0])
+    assert np.all(np.abs(np.diff(wrenches, axis=0)) <= change * DT / RAMP_S + 1e-9)
+
+
+def test_a_change_of_scale_registers_anew_where_the_arm_was_sent():
+    session = following_with_contact()
+    bridge = session.bridge
+    sent = bridge.arm_command().position
+    bridge.configure(bridge.settings._replace(scale=2.0), session.now)
+    commands, _ = run_on(session, 10)
+    np.testing.assert_allclose(commands[-1], sent + 2.0 * 10 * MASTER_STEP, atol=1e-12)
+
+
+def test_a_change_of_base_rotation_turns_the_master_motion_from_where_the_arm_was_sent():
+    session = following_with_contact()
+    bridge = session.bridge
+    sent = bridge.arm_command().position
+    bridge.configure(bridge.settings._replace(base_rotation=(0.0, 0.0, math.pi / 2)),
+                     session.now)
+    commands, _ = run_on(session, 10)
+    np.testing.assert_allclose(commands[-1], sent + (0.0, 0.001, 0.0), atol=1e-12)
+
+
+def test_ignore_then_follow_while_clutched_holds_the_orientation_the_arm_was_sent():
+    session = Session(orientation='ignore').enabled()
+    session.arm_orientation = about_z(0.05)  # where the arm's controller leaves it
+    session.follow((0.0, 0.0, 0.0))
+    session.bridge.set_clutch(True)
+    session.bridge.configure(session.bridge.settings._replace(orientation='follow'),
+                             session.now)
+    session.bridge.set_clutch(False)
+    command = session.follow((0.0, 0.0, 0.0))
+    np.testing.assert_allclose(command.quaternion, about_z(0.05), atol=1e-12)
+
+
+def test_a_force_change_ramps_linearly_over_the_ramp_time():
+    session = following_with_contact()
+    bridge = session.bridge
+    start = session.now
+    bridge.configure(bridge.settings._replace(force_scale=3.0), start)
+    assert bridge.master_wrench(start)[2] == pytest.approx(4.0)
+    assert bridge.master_wrench(start + RAMP_S / 4)[2] == pytest.approx(4.0 + 8.0 / 4)
+    # A second change during the ramp ramps on from where the first had got to.
+    bridge.configure(bridge.settings._replace(force_scale=0.5), start + RAMP_S / 4)
+    assert bridge.master_wrench(start + RAMP_S / 4)[2] == pytest.approx(6.0)
+    # Half way through the first, a quarter through the second: 8 N on its way to 2 N.
+    assert bridge.master_wrench(start + RAMP_S / 2)[2] == pytest.approx(8.0 - 0.25 * 6.0)
+    assert bridge.master_wrench(start + 2 * RAMP_S)[2] == pytest.approx(2.0)
+
+
+def test_force_feedback_turned_off_fades_the_wrench_out_at_the_ticks():
+    session = following_with_contact(master_timeout=1.0, arm_timeout=1.0, ft_timeout=1.0)
+    bridge = session.bridge
+    bridge.configure(bridge.settings._replace(force_feedback=False), session.now)
+    halfway = bridge.tick(session.now + RAMP_S / 2).wrench
+    assert halfway[2] == pytest.approx(2.0)
+    np.testing.assert_array_equal(bridge.tick(session.now + RAMP_S).wrench, np.zeros(6))
+
+
+@pytest.mark.parametrize('change, fragment', [
+    ({'workspace_min': (0.0, 0.0, 3.0)}, 'workspace_min must be below workspace_max'),
+    ({'base_rotation': (0.0, 0.0, 0.0, 2.0)}, 'base_rotation: the quaternion'),
+    ({'orientation': 'loose'}, 'orientation must be one of'),
+    ({'tool_com': (0.0, math.nan, 0.0)}, 'tool_com must be 3 finite numbers')])
+def test_a_refused_change_changes_nothing(change, fragment):
+    session = following_with_contact()
+    bridge = session.bridge
+    settings, force, motion_settings = bridge.settings, bridge.force, bridge.motion.settings
+    expected = following_with_contact()
+    with pytest.raises(ValueError, match=fragment):
+        bridge.configure(settings._replace(**change), session.now)
+    assert (bridge.settings, bridge.force, bridge.motion.settings) == (
+        settings, force, motion_settings)
+    for got, wanted in zip(run_on(session, 10), run_on(expected, 10)):
+        np.testing.assert_array_equal(got, wanted)

@@ -9,7 +9,7 @@ import itertools
 
 from kraft_master_driver.nodes.parameters import (
     check_value, coerce_integers, declare_parameters, descriptor, ParameterError,
-    read_params_file, reject_unknown, Spec, usage)
+    read_params_file, reject_unknown, run_time_changes, Spec, usage)
 import pytest
 from rcl_interfaces.msg import ParameterType
 import rclpy
@@ -94,6 +94,17 @@ def test_a_value_out_of_its_spec_is_refused_in_one_line_naming_it(name, value, m
 
 def test_a_list_value_comes_back_as_a_list():
     assert check_value(TABLE, 'lengths', (0.1, 0.2, 0.3, 0.4)) == [0.1, 0.2, 0.3, 0.4]
+
+
+def test_a_run_time_set_is_checked_as_at_start_up_and_refused_if_read_only():
+    given = [Parameter('rate_hz', value=500.0), Parameter('lengths', value=[0.1, 0.2, 0.3, 0.4]),
+             Parameter('use_sim_time', value=True)]
+    assert run_time_changes(TABLE, given) == {'rate_hz': 500.0, 'lengths': [0.1, 0.2, 0.3, 0.4]}
+    assert refusal(run_time_changes, TABLE, [Parameter('rate_hz', value=0.5)]) == (
+        'parameter rate_hz: 0.5 is outside 1..5000')
+    assert refusal(run_time_changes, TABLE, [Parameter('rate_hz', value=500.0),
+                                             Parameter('baud', value=9600)]) == (
+        'parameter baud is read-only')
 
 
 def test_integers_become_doubles_only_for_floating_point_parameters():
