@@ -74,6 +74,7 @@ BRIDGE = {'rate_hz': 500.0, 'orientation': 'fixed', 'master_timeout': 2.0, 'arm_
 # arm, within its reach hand down, that reaches 5 cm into the table. Its stroke down from the
 # start commands the hand 43 mm past the top, pressing the table with the controller's 1000 N/m.
 MUJOCO_BRIDGE = {**BRIDGE, 'tool_mass': 1.0045, 'tool_com': [0.0, -0.0005, 0.0431],
+                 'arm_stiffness': MUJOCO_ARM_PARAMETERS['translational_stiffness'].default,
                  'workspace_min': [0.2, -0.3, 0.35], 'workspace_max': [0.5, 0.3, 0.55]}
 TELEOP = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args']
 DRIVER_NAME = 'kraft_master_node'

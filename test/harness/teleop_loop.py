@@ -171,7 +171,8 @@ def run(session=Session()):
     arm = PandaArm(table=table, gains=Gains(translational_stiffness=session.stiffness))
     start = arm.tool_position()
     settings = Settings(**{**BRIDGE_SETTINGS, 'max_force': MAX_FORCE,
-                           'passivity': session.passivity})
+                           'passivity': session.passivity,
+                           'arm_stiffness': session.stiffness})
     bridge = Teleoperation(settings)
     master = _Master(session.passivity, home_theta)
     one_way = (session.round_trip_ms / 2.0 + session.latency_ms) / 1e3
