@@ -28,7 +28,7 @@ from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchAdmissio
 from kraft_master_driver.simulation.arms.panda import Gains, PandaArm, Table
 from kraft_master_driver.simulation.master.model import (
     DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
-from kraft_master_driver.tools.demo import MUJOCO_BRIDGE
+from kraft_master_driver.tools.demo import MUJOCO_BRIDGE, MUJOCO_DRIVER
 import numpy as np
 
 ARM = 'right'
@@ -54,6 +54,7 @@ class Session(NamedTuple):
     stiffness: float = 1000.0  # N/m: the Panda's translational stiffness
     past: float = 0.025  # m the operator's hand aims past the table top
     latency_ms: float = 1.0  # ms each way beyond the emulated delay: DDS and the ticks
+    contact_damping: float = MUJOCO_DRIVER['contact_damping']  # s/m, the driver's
     seed: int = 0  # of the losses
     hold: float = HOLD  # s
 
@@ -87,9 +88,9 @@ def _actuator_target(home_theta, depth):
 class _Master:
     """The driver's side: the device and the hand, the force path and the master port."""
 
-    def __init__(self, passivity, home_theta):
+    def __init__(self, passivity, home_theta, contact_damping):
         self.model = DeviceModel(DEFAULT_DYNAMICS, home_theta)
-        self.reflection = ForceReflection(enabled=True)
+        self.reflection = ForceReflection(contact_damping=contact_damping, enabled=True)
         self.admission = WrenchAdmission()
         self.velocity_filter = VelocityFilter(50.0)
         self.port = MasterPort()
@@ -174,7 +175,7 @@ def run(session=Session()):
                            'passivity': session.passivity,
                            'arm_stiffness': session.stiffness})
     bridge = Teleoperation(settings)
-    master = _Master(session.passivity, home_theta)
+    master = _Master(session.passivity, home_theta, session.contact_damping)
     one_way = (session.round_trip_ms / 2.0 + session.latency_ms) / 1e3
     to_arm, to_master = (_Link(one_way, session.loss, rng), _Link(one_way, session.loss, rng))
     top = joints_to_actuators(home_theta)
