@@ -17,6 +17,11 @@ one message. The energies are running totals, so a lost sample only delays the c
 carried. The link emulator's delay line (delay, jitter, loss of what this side receives) can
 sit on top, for tests. The peer's coming and going is logged; while none is connected, one
 line every 10 s says so.
+
+When the peer goes, the arm's link calls the bridge's `enable` service with false: the arm
+holds, and following resumes only once the operator enables the bridge again, not on its own
+when the link comes back. The master's side needs no such call: the driver's watchdog gives
+zero torque once the wrenches stop.
 """
 import json
 import sys
@@ -33,6 +38,7 @@ from kraft_master_driver.nodes.ros_io import (
 import rclpy.logging
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_srvs.srv import SetBool
 
 LOG_PERIOD_S = 10.0
 PEER_CHECK_S = 1.0
@@ -112,6 +118,7 @@ class ZenohLinkNode(Node):
                         for topic in self.sent]
         self.peers = 0
         self.alone_since = time.monotonic()
+        self.enable_client = self.create_client(SetBool, 'enable') if side == 'arm' else None
         self._running = True
         # Between the DDS messages it sends, the thread checks on the peer once a second.
         self.sender = threading.Thread(target=run_paced, name='zenoh_link_send', args=(
@@ -150,6 +157,8 @@ class ZenohLinkNode(Node):
         now = time.monotonic()
         if peers != self.peers:
             self.get_logger().info(f'{peers} authenticated peer(s) {self.role} {self.endpoint}')
+            if not peers and self.enable_client is not None:
+                self._disable_bridge()
             self.peers = peers
             self.alone_since = now
         elif not peers:
@@ -158,6 +167,15 @@ class ZenohLinkNode(Node):
                 f'{now - self.alone_since:.0f} s (a peer is refused without a certificate the '
                 f'root CA signed, or with another common name)',
                 throttle_duration_sec=LOG_PERIOD_S)
+
+    def _disable_bridge(self):
+        """Ask the bridge to disable itself: the link to the master is gone."""
+        if not self.enable_client.service_is_ready():
+            self.get_logger().warning('the peer is gone and no bridge offers enable here')
+            return
+        future = self.enable_client.call_async(SetBool.Request(data=False))
+        future.add_done_callback(lambda done: self.get_logger().warning(
+            f'the peer is gone: disabled the bridge ({done.result().message})'))
 
     def _log_counts(self, logger=None):
         stats = self.line.stats.summary()
