@@ -96,6 +96,8 @@ class ZenohLinkNode(Node):
             raise ParameterError(f'parameter {error}') from None
         self.endpoint = config['listen'] or config['connect']
         self.role = 'listening on' if config['listen'] else 'connecting to'
+        # Zenoh's own log (a refused handshake, say) only where RUST_LOG asks for it.
+        zenoh.try_init_log_from_env()
         try:
             self.session = zenoh.open(zenoh.Config.from_json5(json.dumps(session_config)))
         except zenoh.ZError as error:

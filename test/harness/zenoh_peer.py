@@ -11,7 +11,7 @@ Run inside a host of netns.TwoHosts by the Zenoh link's tests:
 Posing as the master it puts a PoseStamped that moves 1 mm per message along x on
 `<pair>/to_arm/pose`; posing as the arm, a WrenchStamped of 30 N up on `<pair>/to_master/wrench`,
 100 times a second, stamped now. It subscribes to what the listener sends the side it poses
-as, `<pair>/to_<side>/*`, and after `--seconds` prints `received <samples> peers <sessions>`
+as, `<pair>/to_<side>/*`; after `--seconds` it prints `received <samples> peers <sessions>`
 and exits 0. Without a certificate it still speaks TLS and trusts the CA: only its own
 certificate is missing.
 """
@@ -63,7 +63,7 @@ def main():
               'transport': {'link': {'tls': tls}}}
     session = zenoh.open(zenoh.Config.from_json5(json.dumps(config)))
     received = []
-    # What the side it poses as subscribes to (access control refuses a wider key, `<pair>/**`).
+    # What the side it poses as subscribes to: access control admits no wider key.
     session.declare_subscriber(f'{args.pair}/to_{args.posing_as}/*',
                                lambda sample: received.append(1))
     receiver = zenoh_config.other_side(args.posing_as)
