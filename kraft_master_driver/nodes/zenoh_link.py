@@ -108,7 +108,7 @@ class ZenohLinkNode(Node):
         self.releaser.start()
         self.sent = dict.fromkeys(zenoh_config.outgoing(side), 0)
         self.received = dict.fromkeys(zenoh_config.incoming(side), 0)
-        self.zenoh_subscribers = [self._receive(zenoh, topic, zenoh_config.key(pair, topic, side))
+        self.zenoh_subscribers = [self._receive(topic, zenoh_config.key(pair, topic, side))
                                   for topic in self.received]
         other = zenoh_config.other_side(side)
         self.outputs = [(topic, subscribe_raw(self, message_class(zenoh_config.STREAMS[topic][0]),
@@ -133,7 +133,7 @@ class ZenohLinkNode(Node):
             f'{config["tls.peer_common_name"]}): sending {", ".join(self.sent)}; receiving '
             f'{", ".join(self.received)} with {model}')
 
-    def _receive(self, zenoh, topic, key):
+    def _receive(self, topic, key):
         """Subscribe to `key`; publish what comes on DDS `topic`, through the delay line."""
         publisher = self.create_publisher(
             message_class(zenoh_config.STREAMS[topic][0]), topic,
@@ -142,7 +142,12 @@ class ZenohLinkNode(Node):
 
         def on_sample(sample):
             self.received[topic] += 1
-            sender.send(sample.payload.to_bytes())
+            try:
+                sender.send(sample.payload.to_bytes())
+            except RuntimeError:
+                # Ctrl-C shut the context down before the session closed: nothing to publish.
+                if self.context.ok():
+                    raise
         return self.session.declare_subscriber(key, on_sample)
 
     def _send_newest(self):
