@@ -5,13 +5,13 @@ A stream of stamped poses and its one-way delays, for benchmarks/zenoh_link.py.
 
 Run inside a host of netns.TwoHosts (both hosts share the machine's clock):
 
-    python stamped_stream.py receive             # prints 'ready', then on SIGINT one JSON line
+    python stamped_stream.py receive             # 'ready', 'first', on SIGINT one JSON line
     python stamped_stream.py publish --rate 1000 --seconds 10
 
 `publish` waits for a subscriber of `pose`, then publishes PoseStamped CDR bytes stamped with
 the system clock at each tick of its grid (late ticks are skipped, never sent in a burst) and
 exits. `receive` takes `pose` raw, best effort, and records the system clock at each message
-minus its stamp; on SIGINT it prints {"delays_ns": [...]}.
+minus its stamp, printing 'first' at the first; on SIGINT it prints {"delays_ns": [...]}.
 """
 import argparse
 import json
@@ -56,6 +56,8 @@ def receive(node):
     def on_pose(data):
         received = time.time_ns()
         sec, nanosec, _, _ = POSE.decode(data)
+        if not delays:
+            print('first', flush=True)
         delays.append(received - (sec * 1_000_000_000 + nanosec))
 
     node.create_subscription(PoseStamped, 'pose', on_pose, QoSProfile(

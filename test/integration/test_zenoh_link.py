@@ -8,7 +8,10 @@ host (LOCALHOST, a domain each), and only Zenoh crosses the veth: kraft_master_z
 each host, the arm's listening, the master's connecting, certificates made by openssl for the
 test (harness/certificates.py) in a temporary directory. Intruders are harness/zenoh_peer.py.
 """
+import json
 import pathlib
+import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -268,3 +271,49 @@ def test_without_zenoh_the_link_says_so_in_one_line(install_prefix):
     assert result.stderr == ('kraft_master_zenoh_link: eclipse-zenoh is not installed: pip '
                              'install eclipse-zenoh (its pinned version is in '
                              'constraints.txt)\n')
+
+
+STREAM = pathlib.Path(__file__).resolve().parents[1] / 'harness' / 'stamped_stream.py'
+
+
+def free_port():
+    """Return a TCP port of the loopback that nothing listens on now."""
+    with socket.socket() as probe:
+        probe.bind(('127.0.0.1', 0))
+        return probe.getsockname()[1]
+
+
+def test_the_emulated_delay_sits_on_top_of_the_link(install_prefix):
+    if openssl_missing():
+        pytest.skip(openssl_missing())
+    endpoint = f'tls/127.0.0.1:{free_port()}'
+    envs = {side: installed_env(install_prefix, next_domain_id()) for side in ('master', 'arm')}
+    started = []
+
+    def start(*command, env):
+        started.append(Output(subprocess.Popen(command, env=env, stdout=subprocess.PIPE,
+                                               stderr=subprocess.STDOUT, text=True)))
+        return started[-1]
+
+    with Sites({'master': 'DNS:master-site', 'arm': 'IP:127.0.0.1'}) as made:
+        try:
+            for side, peer, end, extra in (('arm', 'master', 'listen', [('delay', 0.05)]),
+                                           ('master', 'arm', 'connect', [])):
+                command = [executable(install_prefix, 'kraft_master_zenoh_link'), '--ros-args']
+                for name, value in [*link_parameters(made, side, peer, pair=PAIR,
+                                                     **{end: endpoint}), *extra]:
+                    command += ['-p', f'{name}:={value}']
+                start(*command, env=envs[side])
+            receiver = start(sys.executable, STREAM, 'receive', env=envs['arm'])
+            wait_for(lambda: receiver.saw('ready'))
+            # Poses at 100 Hz until the first has come through both links and the delay line.
+            start(sys.executable, STREAM, 'publish', '--rate', '100', '--seconds', '600',
+                  env=envs['master'])
+            wait_for(lambda: receiver.saw('first'))
+        finally:
+            for output in reversed(started):
+                output.process.send_signal(signal.SIGINT)
+                output.process.wait(timeout=60)
+    delays = json.loads(receiver.lines[-1])['delays_ns']
+    print(f'{len(delays)} poses, delay min {min(delays) / 1e6:.1f} ms')
+    assert min(delays) >= 50e6
