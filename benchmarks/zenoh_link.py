@@ -12,14 +12,16 @@ DDS island (LOCALHOST, a domain each), and between them kraft_master_zenoh_link 
 (the arm's listening, mutual TLS, certificates made by openssl in a temporary directory).
 The rows alternate, `--runs` of each, `--seconds` of poses at `--rate` Hz per run. Figures: the
 one-way delay (receipt minus stamp, system clock) p50, p99 and max, the share of poses that
-did not arrive, each link's CPU (its process's user + system time over the run, in cores), the
-load average and the CPU share the hypervisor stole. Run from the repository's root with
+did not arrive, how many the master's link sent and the arm's received, each link's CPU (its
+process's user + system time over the run, in cores), the load average and the CPU share the
+hypervisor stole. Run from the repository's root with
 test/ on the path: `PYTHONPATH=test .venv/bin/python -m benchmarks.zenoh_link`.
 """
 import argparse
 import json
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -68,6 +70,18 @@ def wait_for_line(process, text):
     raise RuntimeError(f'{text!r} never came: the process ended')
 
 
+def link_counts(links):
+    """Stop the (arm, master) links; return the poses the master's sent, the arm's received."""
+    counts = {}
+    for link, key, pattern in ((links[1], 'master_link_sent', r'sent pose (\d+)'),
+                               (links[0], 'arm_link_received', r'received pose (\d+)')
+                               ) if links else ():
+        link.send_signal(signal.SIGINT)
+        found = re.findall(pattern, link.communicate(timeout=60)[0])
+        counts[key] = int(found[-1]) if found else None
+    return counts
+
+
 def stream(publisher_host, publisher_env, receiver_host, receiver_env, rate, seconds):
     """Publish on one host, receive on the other; return the delays in ms and the count sent."""
     receiver = receiver_host.popen([sys.executable, STREAM, 'receive'], env=receiver_env,
@@ -104,7 +118,9 @@ def run(kind, sites, rate, seconds):
         elapsed = time.monotonic() - started
         cpu = [(process_cpu_s(link.pid) - before) / elapsed
                for link, before in zip(links, cpu_before)]
+        counts = link_counts(links)
     return {'kind': kind, 'received': len(delays), 'lost_pct': 100.0 * (1 - len(delays) / sent),
+            **counts,
             'p50_ms': float(np.percentile(delays, 50)), 'p99_ms': float(np.percentile(delays, 99)),
             'max_ms': float(np.max(delays)),
             'arm_link_cores': cpu[0] if cpu else None,
