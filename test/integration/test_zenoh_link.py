@@ -11,7 +11,6 @@ test (harness/certificates.py) in a temporary directory. Intruders are harness/z
 import json
 import pathlib
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -166,6 +165,7 @@ def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enabl
         wait_for(lambda: arm_link.saw('disabled the bridge', lines))
         # The master moves 10 mm down while the link is down, and again once it is back.
         glide(simulator, actuator_target(0.0), actuator_target(0.01), 0.5)
+        restore = time.monotonic()
         start_master_link(master, sites)
         wait_for(lambda: arm_link.saw('1 authenticated peer', lines))
         glide(simulator, actuator_target(0.01), actuator_target(0.02), 0.5)
@@ -181,11 +181,13 @@ def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enabl
         efforts, seen = torques.records(), commands.records()
     finally:
         simulator.stop()
-    after_kill = efforts['joint_states']
-    zero_at = next(r[0] for r in after_kill if r[0] > kill and not np.any(r[1:]))
-    print(f'zero torque {1e3 * (zero_at - kill):.0f} ms after the kill')
-    # From the first zero on, zero until the operator enabled the bridge again.
-    assert not np.any(between(after_kill, zero_at, enable))
+    # The torques fell to zero while the link was down, and stayed zero through its return
+    # until the operator enabled the bridge again.
+    pushing = [r[0] for r in efforts['joint_states'] if kill <= r[0] < enable and np.any(r[1:])]
+    last_push = pushing[-1] if pushing else kill
+    print(f'the last torque came {1e3 * (last_push - kill):.0f} ms after the kill')
+    assert last_push < restore
+    assert len(between(efforts['joint_states'], last_push, enable)) > 1
     held = between(seen['servo_cp'], kill, enable)
     before = between(seen['servo_cp'], 0.0, kill)[-1]
     # The arm held: no command moved while the link was down or back but not enabled.
@@ -276,44 +278,21 @@ def test_without_zenoh_the_link_says_so_in_one_line(install_prefix):
 STREAM = pathlib.Path(__file__).resolve().parents[1] / 'harness' / 'stamped_stream.py'
 
 
-def free_port():
-    """Return a TCP port of the loopback that nothing listens on now."""
-    with socket.socket() as probe:
-        probe.bind(('127.0.0.1', 0))
-        return probe.getsockname()[1]
-
-
-def test_the_emulated_delay_sits_on_top_of_the_link(install_prefix):
-    if openssl_missing():
-        pytest.skip(openssl_missing())
-    endpoint = f'tls/127.0.0.1:{free_port()}'
-    envs = {side: installed_env(install_prefix, next_domain_id()) for side in ('master', 'arm')}
-    started = []
-
-    def start(*command, env):
-        started.append(Output(subprocess.Popen(command, env=env, stdout=subprocess.PIPE,
-                                               stderr=subprocess.STDOUT, text=True)))
-        return started[-1]
-
-    with Sites({'master': 'DNS:master-site', 'arm': 'IP:127.0.0.1'}) as made:
-        try:
-            for side, peer, end, extra in (('arm', 'master', 'listen', [('delay', 0.05)]),
-                                           ('master', 'arm', 'connect', [])):
-                command = [executable(install_prefix, 'kraft_master_zenoh_link'), '--ros-args']
-                for name, value in [*link_parameters(made, side, peer, pair=PAIR,
-                                                     **{end: endpoint}), *extra]:
-                    command += ['-p', f'{name}:={value}']
-                start(*command, env=envs[side])
-            receiver = start(sys.executable, STREAM, 'receive', env=envs['arm'])
-            wait_for(lambda: receiver.saw('ready'))
-            # Poses at 100 Hz until the first has come through both links and the delay line.
-            start(sys.executable, STREAM, 'publish', '--rate', '100', '--seconds', '600',
-                  env=envs['master'])
-            wait_for(lambda: receiver.saw('first'))
-        finally:
-            for output in reversed(started):
-                output.process.send_signal(signal.SIGINT)
-                output.process.wait(timeout=60)
+def test_the_emulated_delay_sits_on_top_of_the_link(islands, sites):
+    master, arm = islands
+    arm.start('kraft_master_zenoh_link', [
+        *link_parameters(sites, 'arm', 'master', listen=LISTEN, pair=PAIR), ('delay', 0.05)])
+    start_master_link(master, sites)
+    receiver = Output(arm.host.popen([sys.executable, STREAM, 'receive'], env=arm.env,
+                                     stdout=subprocess.PIPE, text=True))
+    wait_for(lambda: receiver.saw('ready'))
+    # Poses at 100 Hz until the first has come through both links and the delay line.
+    master.host.popen([sys.executable, STREAM, 'publish', '--rate', '100', '--seconds', '600'],
+                      env=master.env)
+    wait_for(lambda: receiver.saw('first'))
+    receiver.process.send_signal(signal.SIGINT)
+    receiver.process.wait(timeout=60)
+    wait_for(lambda: receiver.lines[-1].startswith('{'))
     delays = json.loads(receiver.lines[-1])['delays_ns']
     print(f'{len(delays)} poses, delay min {min(delays) / 1e6:.1f} ms')
     assert min(delays) >= 50e6
