@@ -228,6 +228,8 @@ def test_a_peer_without_a_signed_certificate_gets_nothing_and_moves_nothing(
     # nothing: what it put moved nothing (below).
     assert [r['received'] for r in refused] == [0, 0, 0]
     assert [r['peers'] for r in refused] == [0, 0, 1]
+    # The listening link said, in its one rate-limited line, that no peer had come.
+    assert link.saw(f'no authenticated peer listening on {endpoint}')
     assert not np.any(between(efforts['joint_states'], 0.0, refused_until))
     assert len(between(seen['servo_cp'], 0.0, refused_until)) == 0
     assert signed == {'received': signed['received'], 'peers': 1} and signed['received'] > 0
