@@ -10,10 +10,11 @@ TLS, with mutual authentication against one root CA, no multicast scouting and n
 meets only the endpoints given), a bounded back-off between connection attempts and bounded
 pending handshakes. Access control lets only the peer whose certificate bears the expected
 common name put the streams this side receives and subscribe to those it sends; nothing else.
-Every refusal is a ValueError of one line.
+Every refusal is a ValueError of one line. PoseGate is the arm's rule for the master's poses.
 """
 import os
 import re
+import threading
 
 SIDES = ('master', 'arm')
 # topic -> (message type, the side whose DDS island publishes it)
@@ -156,3 +157,47 @@ def session_config(side, pair, listen, connect, root_ca, certificate, private_ke
         },
         'access_control': access_control(side, pair, check_common_name(peer_common_name)),
     }
+
+
+class PoseGate:
+    """
+    Whether the arm's link relays the master's poses: only once the bridge has been disabled.
+
+    The gate is shut when the link starts, and when more than `timeout` s pass without a pose
+    once one has been relayed: the pose that ends such a gap is dropped. Shut, it says why
+    (reason()); the link then has the bridge disabled and reopens it (reopen()), so that whatever
+    comes back must be enabled again. Poses come on Zenoh's thread, the checks on another.
+    """
+
+    def __init__(self, timeout):
+        """Start shut: the bridge may be following on poses of a link before this one."""
+        self.timeout = timeout
+        self._lock = threading.Lock()
+        self._reason = 'the link started'
+        self._last_pose = None
+
+    def admit(self, now):
+        """Return whether the pose that came at `now` (s, monotonic) goes on to the bridge."""
+        with self._lock:
+            self._shut_if_lapsed(now)
+            if self._reason is None:
+                self._last_pose = now
+            return self._reason is None
+
+    def reason(self, now):
+        """Return why the bridge must be disabled before poses go on, or None if they go."""
+        with self._lock:
+            self._shut_if_lapsed(now)
+            return self._reason
+
+    def reopen(self):
+        """Let poses through again: the bridge is disabled; no gap counts until the next."""
+        with self._lock:
+            self._reason = None
+            self._last_pose = None
+
+    def _shut_if_lapsed(self, now):
+        if (self._reason is None and self._last_pose is not None
+                and now - self._last_pose > self.timeout):
+            self._reason = f'no pose for more than stream_timeout {self.timeout:g} s'
+            self._last_pose = None

@@ -126,3 +126,33 @@ def test_the_connecting_side_backs_off_between_attempts(sites):
     with pytest.raises(ValueError, match=r'^tls.private_key: .*master.pem holds no PEM PRIV'):
         zenoh_config.session_config('master', 'p', '', 'tls/10.0.0.2:7447', sites.ca,
                                     master.certificate, master.certificate, 'arm')
+
+
+def test_the_pose_gate_is_shut_until_opened_and_opens_for_the_next_pose():
+    gate = zenoh_config.PoseGate(0.05)
+    assert gate.reason(10.0) == 'the link started'
+    assert not gate.admit(10.0)
+    gate.reopen()
+    # However long the wait for the first pose after the bridge was disabled, it goes on.
+    assert gate.reason(99.0) is None
+    assert gate.admit(100.0) and gate.admit(100.05)
+
+
+def test_a_gap_longer_than_the_timeout_shuts_the_gate_and_drops_the_pose_that_ends_it():
+    gate = zenoh_config.PoseGate(0.05)
+    gate.reopen()
+    assert gate.admit(1.0)
+    assert not gate.admit(1.051)
+    assert gate.reason(1.06) == 'no pose for more than stream_timeout 0.05 s'
+    assert not gate.admit(1.061)
+    gate.reopen()
+    assert gate.admit(1.07)
+
+
+def test_a_lapsed_stream_shuts_the_gate_before_its_next_pose():
+    gate = zenoh_config.PoseGate(0.05)
+    gate.reopen()
+    assert gate.admit(1.0)
+    assert gate.reason(1.04) is None
+    assert gate.reason(1.06) == 'no pose for more than stream_timeout 0.05 s'
+    assert not gate.admit(1.07)
