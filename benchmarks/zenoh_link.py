@@ -53,21 +53,23 @@ def island_env(domain_id, base=None):
     return env
 
 
-def start_link(host, env, sites, side, peer, **endpoint):
-    """Start kraft_master_zenoh_link of `side` in `host`; return the process."""
+def start_link(host, env, sites, side, peer, extra=(), **endpoint):
+    """Start kraft_master_zenoh_link of `side` in `host`, `extra` parameters too; return it."""
     command = [sys.executable, '-m', 'kraft_master_driver.nodes.zenoh_link', '--ros-args']
-    for name, value in link_parameters(sites, side, peer, **endpoint):
+    for name, value in [*link_parameters(sites, side, peer, **endpoint), *extra]:
         command += ['-p', f'{name}:={value}']
     return host.popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                       text=True)
 
 
-def wait_for_line(process, text):
-    """Read `process`'s output until a line holds `text`."""
+def wait_for_lines(process, *texts):
+    """Read `process`'s output until each of `texts` has been in a line, in any order."""
+    missing = set(texts)
     for line in process.stdout:
-        if text in line:
+        missing = {text for text in missing if text not in line}
+        if not missing:
             return
-    raise RuntimeError(f'{text!r} never came: the process ended')
+    raise RuntimeError(f'{", ".join(sorted(missing))} never came: the process ended')
 
 
 def link_counts(links):
@@ -108,10 +110,13 @@ def run(kind, sites, rate, seconds):
         else:
             master_env, arm_env = island_env(next_domain_id()), island_env(next_domain_id())
             endpoint = f'tls/{arm.address}:7447'
-            links.append(start_link(arm, arm_env, sites, 'arm', 'master', listen=endpoint))
+            # No bridge here: the arm's link relays once it has waited for one; no gap in the
+            # stream holds its poses back (stream_timeout at its maximum).
+            links.append(start_link(arm, arm_env, sites, 'arm', 'master',
+                                    [('stream_timeout', 10.0)], listen=endpoint))
             links.append(start_link(master, master_env, sites, 'master', 'arm',
                                     connect=endpoint))
-            wait_for_line(links[0], '1 authenticated peer')
+            wait_for_lines(links[0], '1 authenticated peer', 'relaying the poses')
         cpu_before = [process_cpu_s(link.pid) for link in links]
         started = time.monotonic()
         delays, sent = stream(master, master_env, arm, arm_env, rate, seconds)

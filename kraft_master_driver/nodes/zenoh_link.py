@@ -18,10 +18,14 @@ carried. The link emulator's delay line (delay, jitter, loss of what this side r
 sit on top, for tests. The peer's coming and going is logged; while none is connected, one
 line every 10 s says so.
 
-When the peer goes, the arm's link calls the bridge's `enable` service with false: the arm
-holds, and following resumes only once the operator enables the bridge again, not on its own
-when the link comes back. The master's side needs no such call: the driver's watchdog gives
-zero torque once the wrenches stop.
+The arm's link relays no pose to the bridge until it has called the bridge's `enable`
+service with false and had its answer (zenoh_config.PoseGate): when it starts, and whenever
+more than `stream_timeout` s pass without a pose from the master (the peer gone, or a blip
+Zenoh's session does not notice). The arm holds, and following resumes only once the operator
+enables the bridge again, not on its own when the poses come back. Where no bridge offers
+`enable` (none within BRIDGE_WAIT_S of the start, or none later), the link says so and relays.
+The master's side needs no such call: the driver's watchdog gives zero torque once the
+wrenches stop.
 """
 import json
 import sys
@@ -42,6 +46,10 @@ from std_srvs.srv import SetBool
 
 LOG_PERIOD_S = 10.0
 PEER_CHECK_S = 1.0
+# The longest the arm's link waits at start for the bridge's enable service to be discovered.
+BRIDGE_WAIT_S = 5.0
+# How often the arm's link looks for a lapsed pose stream and a bridge to disable.
+STREAM_CHECK_S = 0.02
 # The DDS side's raw subscriptions: the newest is sent, so a short queue loses nothing useful.
 QUEUE_DEPTH = 10
 
@@ -58,6 +66,9 @@ PARAMETERS = {
     'tls.private_key': Spec('', 'PEM private key of the certificate of this site.'),
     'tls.peer_common_name': Spec('', 'Common name in the certificate of the other site: the '
                                  'one peer allowed to put or subscribe.'),
+    'stream_timeout': Spec(0.05, 'Side arm: a longer gap between the poses disables the bridge '
+                           '(s); below its master_timeout, above the pose period.',
+                           low=0.001, high=10.0),
     'seed': Spec(-1, 'Seed of the emulated loss and jitter draws; -1: a different one each '
                  'run.'),
     'delay': Spec(0.0, 'Emulated one-way delay (s) added to what this side receives.'),
@@ -108,6 +119,12 @@ class ZenohLinkNode(Node):
         self.releaser.start()
         self.sent = dict.fromkeys(zenoh_config.outgoing(side), 0)
         self.received = dict.fromkeys(zenoh_config.incoming(side), 0)
+        self.started = time.monotonic()
+        self.gate, self.disabling = None, None
+        if side == 'arm':
+            self.gate = zenoh_config.PoseGate(config['stream_timeout'])
+            self.enable_client = self.create_client(SetBool, 'enable')
+            steady_timer(self, STREAM_CHECK_S, self._disable_bridge)
         self.zenoh_subscribers = [self._receive(topic, zenoh_config.key(pair, topic, side))
                                   for topic in self.received]
         other = zenoh_config.other_side(side)
@@ -120,7 +137,6 @@ class ZenohLinkNode(Node):
                         for topic in self.sent]
         self.peers = 0
         self.alone_since = time.monotonic()
-        self.enable_client = self.create_client(SetBool, 'enable') if side == 'arm' else None
         self._running = True
         # Between the DDS messages it sends, the thread checks on the peer once a second.
         self.sender = threading.Thread(target=run_paced, name='zenoh_link_send', args=(
@@ -140,8 +156,12 @@ class ZenohLinkNode(Node):
             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
         sender = DelayedSender(self.line, self.releaser, publisher.publish)
 
+        gate = self.gate if topic == 'pose' else None
+
         def on_sample(sample):
             self.received[topic] += 1
+            if gate is not None and not gate.admit(time.monotonic()):
+                return
             try:
                 sender.send(sample.payload.to_bytes())
             except RuntimeError:
@@ -164,8 +184,6 @@ class ZenohLinkNode(Node):
         now = time.monotonic()
         if peers != self.peers:
             self.get_logger().info(f'{peers} authenticated peer(s) {self.role} {self.endpoint}')
-            if not peers and self.enable_client is not None:
-                self._disable_bridge()
             self.peers = peers
             self.alone_since = now
         elif not peers:
@@ -176,13 +194,23 @@ class ZenohLinkNode(Node):
                 throttle_duration_sec=LOG_PERIOD_S)
 
     def _disable_bridge(self):
-        """Ask the bridge to disable itself: the link to the master is gone."""
-        if not self.enable_client.service_is_ready():
-            self.get_logger().warning('the peer is gone and no bridge offers enable here')
+        """While the gate is shut, have the bridge disabled; open the gate on its answer."""
+        reason = self.gate.reason(time.monotonic())
+        if reason is None or self.disabling is not None:
             return
-        future = self.enable_client.call_async(SetBool.Request(data=False))
-        future.add_done_callback(lambda done: self.get_logger().warning(
-            f'the peer is gone: disabled the bridge ({done.result().message})'))
+        if self.enable_client.service_is_ready():
+            self.disabling = self.enable_client.call_async(SetBool.Request(data=False))
+            self.disabling.add_done_callback(lambda done: self._bridge_disabled(reason, done))
+        elif time.monotonic() - self.started > BRIDGE_WAIT_S:
+            self.get_logger().warning(f'{reason}, and no bridge offers enable here: relaying '
+                                      'the poses')
+            self.gate.reopen()
+
+    def _bridge_disabled(self, reason, done):
+        self.disabling = None
+        self.get_logger().warning(f'{reason}: disabled the bridge ({done.result().message}); '
+                                  'relaying the poses, the bridge follows after enable')
+        self.gate.reopen()
 
     def _log_counts(self, logger=None):
         stats = self.line.stats.summary()

@@ -96,7 +96,7 @@ class Sites:
 def link_parameters(sites, side, peer, listen='', connect='', pair='kraft_master/test'):
     """Return the (name, value) parameters of kraft_master_zenoh_link for `side` of `sites`."""
     own = sites[side]
-    # Only the endpoint given: `-p connect:=` (an empty value) ends a node with exit 0, silently.
+    # Only the endpoint given: rcl refuses `-p connect:=` (an empty value).
     ends = [('listen', listen)] if listen else [('connect', connect)]
     return [('side', side), ('pair', pair), *ends, ('tls.root_ca', sites.ca),
             ('tls.certificate', own.certificate), ('tls.private_key', own.private_key),

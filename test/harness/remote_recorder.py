@@ -34,6 +34,7 @@ def _diagnostics(msg):
 TOPICS = {
     'measured_cp': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
     'servo_cp': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
+    'pose': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
     'wrench': (WrenchStamped, lambda msg: _xyz(msg.wrench.force)),
     'master_energy': (Vector3Stamped, lambda msg: _xyz(msg.vector)),
     'slave_energy': (Vector3Stamped, lambda msg: _xyz(msg.vector)),

@@ -35,6 +35,8 @@ LISTEN = f'tls/{ARM_ADDRESS}:7447'
 # Enabled at start; timeouts that a loaded machine's stalls do not trip (as test_two_hosts.py).
 BRIDGE = [('enable_at_start', 'true'), ('master_timeout', 2.0), ('arm_timeout', 2.0),
           ('ft_timeout', 2.0)]
+# Half the bridge's master_timeout, as the link's default is half the bridge's default.
+ARM_LINK = [('stream_timeout', 1.0)]
 # The arm's tool starts at the centre of its soft box, which pushes it up from the start.
 ARM = [('start_position', vector_parameter(ARM_PARAMETERS['box.centre'][0]))]
 ENABLE = ('from kraft_master_driver.tools.ctl import call; from std_srvs.srv import SetBool; '
@@ -128,8 +130,13 @@ def start_arm_site(arm, sites):
     """Start the bridge, the simulated arm in its box and the listening link; return the link."""
     arm.start('kraft_master_teleop', BRIDGE)
     arm.start('kraft_master_slave_sim', ARM)
-    return arm.start('kraft_master_zenoh_link',
-                     link_parameters(sites, 'arm', 'master', listen=LISTEN, pair=PAIR))
+    return start_arm_link(arm, sites)
+
+
+def start_arm_link(arm, sites):
+    """Start the arm's link, listening."""
+    return arm.start('kraft_master_zenoh_link', [
+        *link_parameters(sites, 'arm', 'master', listen=LISTEN, pair=PAIR), *ARM_LINK])
 
 
 def start_master_link(master, sites):
@@ -138,14 +145,9 @@ def start_master_link(master, sites):
                         link_parameters(sites, 'master', 'arm', connect=LISTEN, pair=PAIR))
 
 
-def between(records, start, end):
-    """Return the values of the records received in [start, end)."""
-    return np.array([r[1:] for r in records if start <= r[0] < end])
-
-
-@pytest.mark.slow
-def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enable(
-        islands, sites):
+@pytest.fixture
+def following(islands, sites):
+    """Start both sites, the master simulated; yield it, the links and the arm's record."""
     master, arm = islands
     simulator = SimulatedKraftMaster(arm='right', operator='hold', transport='tcp')
     try:
@@ -155,32 +157,63 @@ def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enabl
                                            ('force_enabled_at_start', 'true')])
         arm_link = start_arm_site(arm, sites)
         master_link = start_master_link(master, sites)
-        # The box's push crossed back as the bridge's wrench and became the driver's torques.
-        assert_the_box_pushes_the_master(run_probe(master.host, master.env))
-        torques = master.record('joint_states')
         commands = arm.record('servo_cp', 'operating_state')
-        wait_for(lambda: 'joint_states' in torques.first and 'servo_cp' in commands.first)
-        kill, lines = time.monotonic(), len(arm_link.lines)
-        master_link.process.kill()
-        wait_for(lambda: arm_link.saw('disabled the bridge', lines))
-        # The master moves 10 mm down while the link is down, and again once it is back.
-        glide(simulator, actuator_target(0.0), actuator_target(0.01), 0.5)
-        restore = time.monotonic()
-        start_master_link(master, sites)
-        wait_for(lambda: arm_link.saw('1 authenticated peer', lines))
-        glide(simulator, actuator_target(0.01), actuator_target(0.02), 0.5)
-        enable = time.monotonic()
-        # The operator enables the bridge, again until the poses that crossed are fresh there.
-        wait_for(lambda: 'success=True' in arm.host.run(
-            [sys.executable, '-c', ENABLE], env=arm.env, capture_output=True, text=True,
-            timeout=120).stdout)
-        enabled_at = time.monotonic()
-        # Following again: the master goes back up 10 mm, the arm with it.
-        glide(simulator, actuator_target(0.02), actuator_target(0.01), 0.5)
-        end = time.monotonic()
-        efforts, seen = torques.records(), commands.records()
+        wait_for(lambda: 'servo_cp' in commands.first)
+        yield simulator, master_link, arm_link, commands
     finally:
         simulator.stop()
+
+
+def assert_the_arm_holds_while_the_master_moves(arm, simulator, commands, disabled):
+    """Once poses reach the arm's site, move the master 10 mm; assert the bridge held."""
+    poses = arm.record('pose')
+    wait_for(lambda: 'pose' in poses.first)
+    poses.records()
+    glide(simulator, actuator_target(0.0), actuator_target(0.01), 0.5)
+    until = time.monotonic()
+    seen = commands.records()
+    # Until the bridge is disabled, its command may still move to the last pose it followed.
+    before = between(seen['servo_cp'], 0.0, disabled)[-1]
+    held = between(seen['servo_cp'], disabled, until)
+    assert len(held) == 0 or np.max(np.linalg.norm(held - before, axis=1)) < 1e-4, held
+    states = [(r[0] >= disabled, r[1]) for r in seen['operating_state'] if r[0] < until]
+    assert states[-1][1].startswith('DISABLED'), states
+    assert all(state.startswith('DISABLED') for after, state in states if after), states
+
+
+def between(records, start, end):
+    """Return the values of the records received in [start, end)."""
+    return np.array([r[1:] for r in records if start <= r[0] < end])
+
+
+@pytest.mark.slow
+def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enable(
+        islands, sites, following):
+    master, arm = islands
+    simulator, master_link, arm_link, commands = following
+    # The box's push crossed back as the bridge's wrench and became the driver's torques.
+    assert_the_box_pushes_the_master(run_probe(master.host, master.env))
+    torques = master.record('joint_states')
+    wait_for(lambda: 'joint_states' in torques.first)
+    kill, lines = time.monotonic(), len(arm_link.lines)
+    master_link.process.kill()
+    wait_for(lambda: arm_link.saw('disabled the bridge', lines))
+    # The master moves 10 mm down while the link is down, and again once it is back.
+    glide(simulator, actuator_target(0.0), actuator_target(0.01), 0.5)
+    restore = time.monotonic()
+    start_master_link(master, sites)
+    wait_for(lambda: arm_link.saw('1 authenticated peer', lines))
+    glide(simulator, actuator_target(0.01), actuator_target(0.02), 0.5)
+    enable = time.monotonic()
+    # The operator enables the bridge, again until the poses that crossed are fresh there.
+    wait_for(lambda: 'success=True' in arm.host.run(
+        [sys.executable, '-c', ENABLE], env=arm.env, capture_output=True, text=True,
+        timeout=120).stdout)
+    enabled_at = time.monotonic()
+    # Following again: the master goes back up 10 mm, the arm with it.
+    glide(simulator, actuator_target(0.02), actuator_target(0.01), 0.5)
+    end = time.monotonic()
+    efforts, seen = torques.records(), commands.records()
     # The torques fell to zero while the link was down, and stayed zero through its return
     # until the operator enabled the bridge again.
     pushing = [r[0] for r in efforts['joint_states'] if kill <= r[0] < enable and np.any(r[1:])]
@@ -298,3 +331,34 @@ def test_the_emulated_delay_sits_on_top_of_the_link(islands, sites):
     delays = json.loads(receiver.lines[-1])['delays_ns']
     print(f'{len(delays)} poses, delay min {min(delays) / 1e6:.1f} ms')
     assert min(delays) >= 50e6
+
+
+@pytest.mark.slow
+def test_a_blip_the_session_does_not_notice_disables_the_bridge(islands, sites, following):
+    _, arm = islands
+    simulator, master_link, arm_link, commands = following
+    lines = len(arm_link.lines)
+    # The master's link stops, Zenoh's session and its lease of 10 s with it, for as long
+    # as the arm's link takes to notice that no pose came for stream_timeout.
+    master_link.process.send_signal(signal.SIGSTOP)
+    try:
+        wait_for(lambda: arm_link.saw('no pose for more than stream_timeout 1 s: disabled '
+                                      'the bridge', lines))
+    finally:
+        master_link.process.send_signal(signal.SIGCONT)
+    assert_the_arm_holds_while_the_master_moves(arm, simulator, commands, time.monotonic())
+    assert not arm_link.saw('0 authenticated peer', lines)
+
+
+@pytest.mark.slow
+def test_a_restarted_arm_link_disables_the_bridge_before_it_relays_a_pose(
+        islands, sites, following):
+    _, arm = islands
+    simulator, _, arm_link, commands = following
+    # Restarted as systemd restarts a service: SIGTERM, then a new process (killed with
+    # SIGKILL once, it left a Fast DDS shared-memory segment, which conftest.py refuses).
+    arm_link.process.terminate()
+    assert arm_link.process.wait(timeout=60) == 0
+    arm_link = start_arm_link(arm, sites)
+    wait_for(lambda: arm_link.saw('the link started: disabled the bridge'))
+    assert_the_arm_holds_while_the_master_moves(arm, simulator, commands, time.monotonic())
