@@ -26,7 +26,7 @@ setup(
     # declares the same for rosdep).
     install_requires=['setuptools', 'numpy', 'pyserial', 'PyYAML', 'matplotlib', 'rosbags',
                       'lz4', 'backports.zstd; python_version < "3.14"', 'mujoco',
-                      'gymnasium-robotics'],
+                      'gymnasium-robotics', 'eclipse-zenoh'],
     zip_safe=True,
     maintainer='kraft_master_driver maintainers',
     maintainer_email='maintainers@kraft-master-driver.org',
@@ -46,6 +46,7 @@ setup(
             'kraft_master_link_emulator = kraft_master_driver.nodes.commands:link_emulator',
             'kraft_master_teleop = kraft_master_driver.nodes.commands:teleop',
             'kraft_master_arm_sim = kraft_master_driver.nodes.commands:arm_sim',
+            'kraft_master_zenoh_link = kraft_master_driver.nodes.commands:zenoh_link',
         ],
     },
 )

@@ -42,3 +42,8 @@ def teleop():
 def arm_sim():
     """kraft_master_arm_sim."""
     return _run('arm_sim')
+
+
+def zenoh_link():
+    """kraft_master_zenoh_link."""
+    return _run('zenoh_link')

@@ -95,10 +95,10 @@ class Releaser(threading.Thread):
         self.wake = threading.Condition()
         self.running = True
 
-    def put(self, due, relay, data, admitted):
-        """Queue `data` for `relay` to publish at `due`."""
+    def put(self, due, sender, data, admitted):
+        """Queue `data` for `sender` to publish at `due`."""
         with self.wake:
-            heapq.heappush(self.queue, (due, next(self.sequence), relay, data, admitted))
+            heapq.heappush(self.queue, (due, next(self.sequence), sender, data, admitted))
             if self.queue[0][0] == due:
                 self.wake.notify()
 
@@ -113,9 +113,9 @@ class Releaser(threading.Thread):
                     self.wake.wait(min(self.queue[0][0] - now, RECHECK_S) if self.queue
                                    else RECHECK_S)
                     continue
-                _, _, relay, data, admitted = heapq.heappop(self.queue)
+                _, _, sender, data, admitted = heapq.heappop(self.queue)
             try:
-                relay.release(data, admitted)
+                sender.release(data, admitted)
             except RuntimeError:
                 # Ctrl-C shut a context down before stop(): nothing more can be published.
                 return
@@ -126,6 +126,39 @@ class Releaser(threading.Thread):
             self.running = False
             self.wake.notify()
         self.join()
+
+
+class DelayedSender:
+    """Hands messages to `publish` through a DelayLine: at once if due now, else at their time."""
+
+    def __init__(self, line, releaser, publish):
+        """Send through `line`; `releaser` publishes what must wait, by calling release()."""
+        self.line = line
+        self.releaser = releaser
+        self.publish = publish
+        self.queued = 0
+        self.lock = threading.Lock()
+
+    def send(self, data):
+        """Lose `data`, publish it now, or queue it for its due time, as the line decides."""
+        now = time.monotonic()
+        with self.lock:
+            due = self.line.admit(now)
+            if due is None:
+                return
+            if due <= now and not self.queued:
+                self.publish(data)
+                self.line.record(time.monotonic(), now)
+                return
+            self.queued += 1
+        self.releaser.put(due, self, data, now)
+
+    def release(self, data, admitted):
+        """Publish `data` (called by the release thread at its due time)."""
+        self.publish(data)
+        with self.lock:
+            self.line.record(time.monotonic(), admitted)
+            self.queued -= 1
 
 
 class Relay:
@@ -141,8 +174,6 @@ class Relay:
         self.line = line
         self.releaser = releaser
         self.publisher = None
-        self.queued = 0
-        self.lock = threading.Lock()
         if self.type_name is not None:
             self._connect(message_class(self.type_name))
 
@@ -163,30 +194,11 @@ class Relay:
         self.publisher = self.destination_node.create_publisher(
             msg_class, self.destination, QoSProfile(depth=10,
                                                     reliability=ReliabilityPolicy.RELIABLE))
+        sender = DelayedSender(self.line, self.releaser, self.publisher.publish)
         self.source_node.create_subscription(
-            msg_class, self.source, self._on_message,
+            msg_class, self.source, sender.send,
             QoSProfile(depth=self.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT),
             raw=True)
-
-    def _on_message(self, data):
-        now = time.monotonic()
-        with self.lock:
-            due = self.line.admit(now)
-            if due is None:
-                return
-            if due <= now and not self.queued:
-                self.publisher.publish(data)
-                self.line.record(time.monotonic(), now)
-                return
-            self.queued += 1
-        self.releaser.put(due, self, data, now)
-
-    def release(self, data, admitted):
-        """Publish `data` (called by the release thread at its due time)."""
-        self.publisher.publish(data)
-        with self.lock:
-            self.line.record(time.monotonic(), admitted)
-            self.queued -= 1
 
 
 class LinkEmulatorNode(Node):

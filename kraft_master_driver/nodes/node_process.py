@@ -53,15 +53,22 @@ def ros_argument_files(argv):
 
 
 def _program_arguments(argv):
-    """Return the arguments of a command line that are not ROS arguments."""
-    return rclpy.utilities.remove_ros_args(argv)[1:]
+    """Return the arguments of a command line that are not ROS arguments; refuse bad ROS ones."""
+    try:
+        return rclpy.utilities.remove_ros_args(argv)[1:]
+    except RuntimeError as error:
+        # rclpy's RCLInvalidROSArgsError (`-p name:=` with no value) or UnknownROSArgsError,
+        # neither with a public name; before rclpy.init, run_node took them for a stop signal.
+        raise ParameterError(f'bad ROS arguments: {_rcl_reason(error)}') from None
 
 
 def _rcl_reason(error):
     """Return the message of an rcl start-up error without rcl's source locations."""
     text = str(error)
     text = text.split("Couldn't parse params file: ", 1)[-1]
-    return re.sub(r', at [^,]*\.c:\d+', '', text).replace('failed to initialize rcl: ', '')
+    text = re.sub(r'(\. Error: error not set)?, at [^,]*\.c:\d+', '', text)
+    return text.replace('failed to initialize rcl: ', '').replace(
+        'Failed to parse ROS arguments: ', '')
 
 
 def run_node(make_node, program, summary, table, args=None):

@@ -7,9 +7,11 @@ Beside the bridge and the simulated arm, it waits for `--poses` of the driver's 
 for the bridge's `wrench` and for the driver's `joint_states` to carry a torque. It prints
 `pose <count> <min one-way delay s>`, `wrench <force x y z of the last one>` and
 `effort <six torques>`. Exit 0 on success, 1 (with `timeout: ...`) when any of them does not
-come within `--timeout` s. It publishes nothing.
+come within `--timeout` s. It publishes nothing. run_probe() runs it in a host and returns
+what it printed; assert_the_box_pushes_the_master() checks that.
 """
 import argparse
+import pathlib
 import sys
 import time
 
@@ -17,6 +19,25 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
+
+PROBE = pathlib.Path(__file__).resolve()
+
+
+def run_probe(host, env):
+    """Run this probe in `host` with `env` to its end; return {'pose', 'wrench', 'effort'}."""
+    result = host.run([sys.executable, PROBE, '--timeout', '90'], env=env,
+                      capture_output=True, text=True, timeout=150)
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = dict(line.split(' ', 1) for line in result.stdout.splitlines() if ' ' in line)
+    return {key: [float(v) for v in lines[key].split()]
+            for key in ('pose', 'wrench', 'effort')}
+
+
+def assert_the_box_pushes_the_master(seen):
+    """Assert the bridge reflected the box's upward push and the driver turned it to torques."""
+    force_x, force_y, force_z = seen['wrench']
+    assert force_z > 1.0 and abs(force_x) + abs(force_y) < 0.1 * force_z, seen['wrench']
+    assert any(abs(value) > 1e-3 for value in seen['effort'])
 
 
 def main():

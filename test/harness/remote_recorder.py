@@ -4,9 +4,10 @@
 Record teleoperation topics on one host (its namespace), print them as JSON when stopped.
 
 Run inside a host of netns.TwoHosts: python remote_recorder.py TOPIC... (of measured_cp,
-servo_cp, wrench, master_energy, slave_energy, diagnostics). Prints 'ready' once subscribed and
-'first TOPIC' when a topic's first message comes; on SIGINT or SIGTERM prints one JSON line,
-{topic: [[monotonic receipt time, values...], ...]} (diagnostics: [time, {key: value}]).
+servo_cp, wrench, master_energy, slave_energy, diagnostics, joint_states, operating_state).
+Prints 'ready' once subscribed and 'first TOPIC' when a topic's first message comes; on SIGINT
+or SIGTERM prints one JSON line, {topic: [[monotonic receipt time, values...], ...]}
+(diagnostics: [time, {key: value}]; joint_states: the efforts).
 """
 import json
 import sys
@@ -18,6 +19,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 
 def _xyz(v):
@@ -31,10 +34,13 @@ def _diagnostics(msg):
 TOPICS = {
     'measured_cp': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
     'servo_cp': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
+    'pose': (PoseStamped, lambda msg: _xyz(msg.pose.position)),
     'wrench': (WrenchStamped, lambda msg: _xyz(msg.wrench.force)),
     'master_energy': (Vector3Stamped, lambda msg: _xyz(msg.vector)),
     'slave_energy': (Vector3Stamped, lambda msg: _xyz(msg.vector)),
     'diagnostics': (DiagnosticArray, lambda msg: [_diagnostics(msg)]),
+    'joint_states': (JointState, lambda msg: list(msg.effort)),
+    'operating_state': (String, lambda msg: [msg.data]),
 }
 
 

@@ -108,12 +108,12 @@ def start(host, prefix, domain_id, name, parameters):
 class Recorder:
     """remote_recorder.py running in a host; records() stops it and returns what it got."""
 
-    def __init__(self, host, prefix, domain_id, topics):
-        """Start recording `topics` on domain_id in `host`."""
+    def __init__(self, host, prefix, domain_id, topics, env=None):
+        """Start recording `topics` in `host`; by default on domain_id across the veth."""
         self.topics = topics
         self.process = host.popen(
             [sys.executable, RECORDER, *topics],
-            env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
+            env=env or host.ros_env(domain_id, installed_env(prefix, domain_id)),
             stdout=subprocess.PIPE, text=True)
         assert self.process.stdout.readline().strip() == 'ready'
         self.first = set()
@@ -254,13 +254,19 @@ def operate(simulator, depth):
                                           ('hold', pushed, pushed, HOLD),
                                           ('release', pushed, home, RAMP),
                                           ('settle', home, home, SETTLE)):
-        marks[phase] = t0 = time.monotonic()
-        while (elapsed := time.monotonic() - t0) < seconds:
-            blend = 0.5 - 0.5 * math.cos(math.pi * elapsed / seconds)
-            simulator.hold_at(start_at + blend * (end - start_at))
-            time.sleep(0.01)
+        marks[phase] = time.monotonic()
+        glide(simulator, start_at, end, seconds)
     marks['end'] = time.monotonic()
     return marks
+
+
+def glide(simulator, start_at, end, seconds):
+    """Move the operator's hand from actuators `start_at` to `end` over `seconds`, smoothly."""
+    t0 = time.monotonic()
+    while (elapsed := time.monotonic() - t0) < seconds:
+        blend = 0.5 - 0.5 * math.cos(math.pi * elapsed / seconds)
+        simulator.hold_at(start_at + blend * (end - start_at))
+        time.sleep(0.01)
 
 
 def figures(samples, master, far, marks, wall_point, arm):

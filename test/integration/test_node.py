@@ -517,6 +517,22 @@ def test_help_prints_usage_and_starts_nothing(install_prefix, name, table):
     assert '[INFO]' not in result.stdout and '[WARN]' not in result.stdout
 
 
+@pytest.mark.parametrize('name, arguments, error', [
+    ('kraft_master_node', ['-p', 'port:='],
+     "bad ROS arguments: Couldn't parse parameter override rule: '-p port:='"),
+    ('kraft_master_zenoh_link', ['-p', 'connect:='],
+     "bad ROS arguments: Couldn't parse parameter override rule: '-p connect:='"),
+    ('kraft_master_slave_sim', ['start_position'], "bad ROS arguments: ['start_position']"),
+])
+def test_bad_ros_arguments_exit_1_in_one_line(install_prefix, name, arguments, error):
+    # rclpy refuses these before rcl starts; the node once exited 0 without a word.
+    result = subprocess.run([str(executable(install_prefix, name)), '--ros-args', *arguments],
+                            env=installed_env(install_prefix, next_domain_id()),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert result.stderr == f'{name}: {error}\n'
+
+
 # -- waiting for the device, /diagnostics ------------------------------------------------------
 
 

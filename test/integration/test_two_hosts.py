@@ -16,11 +16,11 @@ import time
 from harness import dds_shm, REPO
 from harness.driver import executable, installed_env, next_domain_id, vector_parameter
 from harness.netns import namespaces_of_this_process, NamespacesRefused, TwoHosts
+from harness.remote_probe import assert_the_box_pushes_the_master, run_probe
 from kraft_master_driver.nodes.slave_sim import PARAMETERS as ARM_PARAMETERS
 import pytest
 
 TESTS = REPO / 'test'  # the directory of the harness package, on the tests' path
-PROBE = TESTS / 'harness' / 'remote_probe.py'
 # The arm's tool starts at the centre of its soft box, which pushes it up (+z) out of the
 # nearest face harder than its servo holds it back: a steady contact force from the start.
 ARM = [('start_position', vector_parameter(ARM_PARAMETERS['box.centre'][0]))]
@@ -68,14 +68,7 @@ def start_arm_side(host, prefix, domain_id):
 
 def probe(host, prefix, domain_id):
     """Run remote_probe.py in `host` to its end; return {'pose', 'wrench', 'effort': [...]}."""
-    result = host.run(
-        [sys.executable, PROBE, '--timeout', '90'],
-        env=host.ros_env(domain_id, installed_env(prefix, domain_id)),
-        capture_output=True, text=True, timeout=150)
-    assert result.returncode == 0, result.stdout + result.stderr
-    lines = dict(line.split(' ', 1) for line in result.stdout.splitlines() if ' ' in line)
-    return {key: [float(v) for v in lines[key].split()]
-            for key in ('pose', 'wrench', 'effort')}
+    return run_probe(host, host.ros_env(domain_id, installed_env(prefix, domain_id)))
 
 
 def outputs(processes):
@@ -85,13 +78,6 @@ def outputs(processes):
         dds_shm.end(process)
         texts.append(f'{name}:\n{process.communicate(timeout=10)[0]}')
     return '\n'.join(texts)
-
-
-def assert_the_box_pushes_the_master(seen):
-    """Assert the bridge reflected the box's upward push and the driver turned it to torques."""
-    force_x, force_y, force_z = seen['wrench']
-    assert force_z > 1.0 and abs(force_x) + abs(force_y) < 0.1 * force_z, seen['wrench']
-    assert any(abs(value) > 1e-3 for value in seen['effort'])
 
 
 def test_driver_and_bridge_on_two_hosts_exchange_pose_and_wrench_across_the_veth(

@@ -22,7 +22,8 @@ BIN = pathlib.Path(sys.executable).parent
 ROSDEP_MODULES = {'python3-numpy': 'numpy', 'python3-serial': 'serial', 'python3-yaml': 'yaml',
                   'python3-matplotlib': 'matplotlib', 'python3-rosbags-pip': 'rosbags',
                   'python3-mujoco-pip': 'mujoco',
-                  'python3-gymnasium-robotics-pip': 'gymnasium_robotics'}
+                  'python3-gymnasium-robotics-pip': 'gymnasium_robotics',
+                  'python3-eclipse-zenoh-pip': 'zenoh'}
 
 # ROS packages that are not on PyPI, imported only where installed (the bridge's TF lookup and
 # its test): package.xml declares them for a ROS install; no pip file can bring them.
@@ -212,7 +213,8 @@ def test_every_import_of_the_package_is_declared_in_package_xml():
     # A pip key installs its distribution's own requirements too (rosbags: lz4, backports).
     for key in declared & set(ROSDEP_MODULES):
         if key.endswith('-pip'):
-            for text in importlib.metadata.requires(ROSDEP_MODULES[key]) or []:
+            distribution = key.removeprefix('python3-').removesuffix('-pip')
+            for text in importlib.metadata.requires(distribution) or []:
                 modules |= top_level_modules(Requirement(text).name)
     missing = {f'{path.relative_to(REPO)}: {" or ".join(sorted(group))}'
                for path in package_modules() for group in import_groups(path)
