@@ -110,6 +110,7 @@ doc-figures: $(DEVELOPMENT)
 	$(VPY) doc/figures/session_diagram.py doc/figures/session.png
 	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
 	$(VPY) doc/figures/arm_contact.py doc/figures/arm_contact.png
+	PYTHONPATH=test $(VPY) doc/figures/teleop_quality_plot.py doc/figures/teleop_quality.png
 
 # Figures, not tests: each prints a table (loop and link also write JSON). Each runs as a module
 # from here, which imports this checkout's package.

@@ -49,7 +49,8 @@ def main(argv=None):
     parser.add_argument('--past', type=float, nargs='+', default=[1e3 * session.PAST],
                         help="how far the operator's hand aims past the arm's surface (mm)")
     parser.add_argument('--arm-set', nargs='+', default=[], metavar='NAME:=VALUE',
-                        help="parameters of the arm's node, e.g. translational_stiffness:=5000")
+                        help="parameters of the arm's node, e.g. translational_stiffness:=5000 "
+                        "(the bridge's arm_stiffness follows it)")
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
     args = parser.parse_args(argv)
     modes = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.passivity]
@@ -58,13 +59,15 @@ def main(argv=None):
         prefix = colcon_build(pathlib.Path(workdir))
         print(' | '.join(title for title, _, _ in COLUMNS), flush=True)
         arm_parameters = [text.split(':=', 1) for text in args.arm_set]
+        bridge_parameters = [('arm_stiffness', value) for name, value in arm_parameters
+                             if name == 'translational_stiffness']
         for seed, (past, round_trip, loss, passivity) in enumerate(
                 (d, r, s, p) for d in args.past for r in args.round_trips for s in args.losses
                 for p in modes):
             row = {'past_mm': past, 'round_trip_ms': round_trip, 'loss_pct': 100.0 * loss,
                    'passivity': 'on' if passivity else 'off',
                    **session.run_row(prefix, round_trip, loss, passivity, seed, args.arm,
-                                     past / 1e3, arm_parameters)}
+                                     past / 1e3, arm_parameters, bridge_parameters)}
             rows.append(row)
             print(' | '.join(form.format(row[key]) for _, key, form in COLUMNS), flush=True)
     if args.json:

@@ -39,7 +39,7 @@ PACKAGE = 'kraft_master_driver'
 ARM_SETS = {'right': ('right',), 'left': ('left',), 'both': ('right', 'left')}
 BOOLEANS = ('true', 'false')
 ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
-             'force_enabled', 'rate_command', 'crtk', 'sim_operator', 'rsp')
+             'force_enabled', 'contact_damping', 'rate_command', 'crtk', 'sim_operator', 'rsp')
 # ros2 launch's own options (--launch-prefix), which it hands over as launch arguments.
 LAUNCH_OPTIONS = ('launch-prefix', 'launch-prefix-filter')
 
@@ -132,7 +132,8 @@ def arguments(**defaults):
     values = {'arms': 'right', 'right_port': '/dev/ttyUSB0', 'left_port': '/dev/ttyUSB1',
               'right_params_file': os.path.join(config, 'right_arm.yaml'),
               'left_params_file': os.path.join(config, 'left_arm.yaml'),
-              'force_enabled': 'false', 'rate_command': 'false', 'crtk': 'false',
+              'force_enabled': 'false', 'contact_damping': '0.0', 'rate_command': 'false',
+              'crtk': 'false',
               'sim_operator': 'hold', 'rsp': 'false', **defaults}
     return {argument.name: argument for argument in (
         declare(values, 'arms', 'Which arms to run: right, left or both.', ARM_SETS),
@@ -144,6 +145,9 @@ def arguments(**defaults):
                                             'kraft_master_calibrate wrote.'),
         declare(values, 'force_enabled', "The driver's force output enabled at start-up.",
                 BOOLEANS),
+        declare(values, 'contact_damping', "The driver's contact_damping (s/m): damping of the "
+                                           'wrist per newton of the force reflected '
+                                           "(teleop.launch.py: empty takes the arm model's)."),
         declare(values, 'rate_command', 'Publish rate_command (after a set_center call).',
                 BOOLEANS),
         declare(values, 'crtk', 'Also answer under CRTK names: measured_js, measured_cp, '
@@ -155,13 +159,14 @@ def arguments(**defaults):
 
 
 def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command, rsp,
-              crtk=False):
+              crtk=False, contact_damping=0.0):
     """Return the driver of `arm` and, if `rsp`, its robot_state_publisher."""
     nodes = [Node(
         package=PACKAGE, executable='kraft_master_node', namespace=arm, output='screen',
         parameters=[
             params_file,
             {'port': port, 'force_enabled_at_start': force_enabled,
+             'contact_damping': contact_damping,
              'sim_operator': sim_operator, 'rate_command_enabled': rate_command,
              'crtk_names': crtk, **driver_names(arm)},
         ])]
@@ -186,7 +191,8 @@ def _nodes(value):
     for arm in arms:
         nodes += arm_nodes(arm, params_files[arm], value(f'{arm}_port'),
                            value('force_enabled') == 'true', value('sim_operator'),
-                           value('rate_command') == 'true', rsp, value('crtk') == 'true')
+                           value('rate_command') == 'true', rsp, value('crtk') == 'true',
+                           float(value('contact_damping')))
     return nodes
 
 

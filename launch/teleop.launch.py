@@ -29,8 +29,8 @@ PACKAGE = DRIVER.PACKAGE
 ARM_MODELS = {'point_mass': 'kraft_master_slave_sim', 'panda': 'kraft_master_arm_sim'}
 MODES = ('pose', 'twist')
 ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
-             'arm_model', 'mode', 'enable', 'force_enabled', 'rate_command', 'sim_operator',
-             'rsp')
+             'arm_model', 'mode', 'enable', 'force_enabled', 'contact_damping', 'rate_command',
+             'sim_operator', 'rsp')
 REFUSED = {'crtk': "the driver's CRTK topics measured_cp and measured_js would be the simulated "
                    "arm's, which the bridge reads; kraft_master.launch.py takes it"}
 
@@ -38,7 +38,7 @@ REFUSED = {'crtk': "the driver's CRTK topics measured_cp and measured_js would b
 def arguments(**defaults):
     """Return the launch arguments by name, with `defaults` ({name: value}) for theirs."""
     values = {'arm_model': 'point_mass', 'mode': 'pose', 'enable': 'true',
-              'force_enabled': 'true', **defaults}
+              'force_enabled': 'true', 'contact_damping': '', **defaults}
     declared = DRIVER.arguments(**{name: value for name, value in values.items()
                                    if name in DRIVER.ARGUMENTS})
     declared.update((argument.name, argument) for argument in (
@@ -55,6 +55,14 @@ def arguments(**defaults):
 def arm_frames(arm):
     """Return the frames of the simulated arm of `arm`: its base, its wrist sensor."""
     return {'arm_frame': f'{arm}_sim_arm_base', 'ft_frame': f'{arm}_sim_arm_ft_sensor'}
+
+
+def driver_settings(arm_model):
+    """Return the driver's parameters that `arm_model` needs."""
+    if arm_model == 'panda':
+        from kraft_master_driver.tools.demo import MUJOCO_DRIVER
+        return MUJOCO_DRIVER
+    return {}
 
 
 def bridge_settings(arm_model):
@@ -82,8 +90,15 @@ def pair_nodes(arm, mode, enable, arm_model):
 
 
 def _actions(value):
+    model = driver_settings(value('arm_model'))
+
+    def driver_value(name):
+        # An argument left empty takes the arm model's setting, or the driver's default.
+        if value(name) == '':
+            return str(model.get(name, DRIVER.arguments()[name].default_value[0].text))
+        return value(name)
     actions = [DRIVER.scoped_include('kraft_master.launch.py', {
-        name: value(name) for name in ARGUMENTS if name in DRIVER.ARGUMENTS})]
+        name: driver_value(name) for name in ARGUMENTS if name in DRIVER.ARGUMENTS})]
     for arm in DRIVER.ARM_SETS[value('arms')]:
         actions += pair_nodes(arm, value('mode'), value('enable') == 'true', value('arm_model'))
     return actions

@@ -83,6 +83,7 @@ class Settings(NamedTuple):
     wrench_timeout: float = 0.05
     centre_stiffness: tuple[float, ...] = (0.0, 0.0)
     centre_damping: tuple[float, ...] = (0.0, 0.0)
+    contact_damping: float = 0.0
 
 
 class _HotPath(NamedTuple):
@@ -108,6 +109,7 @@ _VALIDATORS: dict[str, Callable[[Any], object]] = {
                               lower_open=True),
     'centre_stiffness': partial(finite_reals, 'centre_stiffness', length=2),
     'centre_damping': partial(finite_reals, 'centre_damping', length=2),
+    'contact_damping': partial(finite_real, 'contact_damping'),
 }
 
 
@@ -130,7 +132,8 @@ class ForceReflection:
     """
     Task wrench -> five device torques: frames, scaling, return-to-centre, saturation, watchdog.
 
-    Torques are J^T (force_scale * F + W_centre) with F in {0} at the wrist origin, th6 dropped
+    Torques are J^T (force_scale * F + W_centre - contact_damping |F| v) with F in {0} at the
+    wrist origin (after the passivity port, if any) and v the wrist's linear velocity, th6 dropped
     (no motor), mapped to the actuator form (elbow motor drives th2 + th3) when coupling is
     'actuator', then scaled down as a whole vector if any axis exceeds its torque limit.
 
@@ -144,18 +147,21 @@ class ForceReflection:
     wrench_timeout = _setting('wrench_timeout')
     centre_stiffness = _setting('centre_stiffness')
     centre_damping = _setting('centre_damping')
+    contact_damping = _setting('contact_damping')
 
     def __init__(self, force_scale: float = 1.0,
                  torque_limits: Sequence[float] = DEFAULT_TORQUE_LIMITS,
                  coupling: str = 'actuator', wrench_timeout: float = 0.05,
                  centre_stiffness: Sequence[float] = (0.0, 0.0),
-                 centre_damping: Sequence[float] = (0.0, 0.0), enabled: bool = False) -> None:
+                 centre_damping: Sequence[float] = (0.0, 0.0), contact_damping: float = 0.0,
+                 enabled: bool = False) -> None:
         """
         Validate the settings (ValueError naming the bad one); force output starts disabled.
 
         force_scale (1), torque_limits (5 values, N*m, actuator axes 1..5, > 0),
         coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]),
-        centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad).
+        centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad), contact_damping
+        (s/m: N*s/m of linear damping per N of the force reflected, >= 0).
         """
         self._write_lock = threading.Lock()
         self._hot = _hot_path(Settings())
@@ -172,7 +178,7 @@ class ForceReflection:
         self.configure(
             enabled=enabled, force_scale=force_scale, torque_limits=torque_limits,
             coupling=coupling, wrench_timeout=wrench_timeout, centre_stiffness=centre_stiffness,
-            centre_damping=centre_damping)
+            centre_damping=centre_damping, contact_damping=contact_damping)
 
     @property
     def settings(self) -> Settings:
@@ -286,6 +292,13 @@ class ForceReflection:
             wrench = _minus_product(wrench, hot.stiffness, dp.tolist() + dw.tolist())
         if hot.damping is not None and cartesian_velocity is not None:
             wrench = _minus_product(wrench, hot.damping, _as_lists(cartesian_velocity))
+        if settings.contact_damping and cartesian_velocity is not None:
+            # A damper as strong as the force felt: none in free space, in contact it takes
+            # out the energy that the force's lag behind the wrist would put in.
+            fx, fy, fz = wrench[:3]
+            gain = settings.contact_damping * math.sqrt(fx * fx + fy * fy + fz * fz)
+            vx, vy, vz = _as_lists(cartesian_velocity)[:3]
+            wrench = [fx - gain * vx, fy - gain * vy, fz - gain * vz, *wrench[3:]]
 
         # Plain floats: a few tolist() calls beat a chain of tiny numpy operations here.
         columns = list(zip(*_as_lists(jacobian)))

@@ -30,7 +30,7 @@ from enum import StrEnum
 from typing import Callable, NamedTuple, Optional, Sequence
 
 from kraft_master_driver.core.passivity import SlavePort
-from kraft_master_driver.core.rotations import rotation_parameter
+from kraft_master_driver.core.rotations import norm, rotation_parameter
 from kraft_master_driver.core.teleoperation_force import ForcePath
 from kraft_master_driver.core.teleoperation_inputs import (
     checked_pose, checked_reading, Floats, tracking_error)
@@ -407,7 +407,9 @@ class Teleoperation:
         if self.following and force_feedback and self.reading is not None:
             assert self.arm is not None  # following needs it
             contact = force.contact_wrench(self.reading[0], self.arm[0].rotation)
-            wrench = force.master_wrench(contact, base_rotation, now)
+            assert self.motion.command is not None  # following: registered
+            stretch = norm(self.motion.command.position - self.arm[0].position)
+            wrench = force.master_wrench(force.within_pull(contact, stretch), base_rotation, now)
         else:
             wrench = force.zero()
         if ramp is None or ramp.weight(now) == 1.0:

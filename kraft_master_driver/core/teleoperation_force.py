@@ -65,6 +65,21 @@ class ForcePath:
         self._filtered, self._filtered_at = np.zeros(6), None
         return np.zeros(6)
 
+    def within_pull(self, contact: Array, stretch: float) -> Array:
+        """
+        Return the contact wrench with its force no larger than the arm's impedance pulls.
+
+        stretch: how far the arm's command is from its measured tool (m). With arm_stiffness
+        set, the force is at most arm_stiffness * stretch: the arm presses no harder than its
+        spring, and what the sensor reads beyond that is the tool's own impact and inertia,
+        which would kick the master (0: no limit).
+        """
+        pull = self.settings.arm_stiffness * stretch
+        force = norm(contact[:3])
+        if self.settings.arm_stiffness <= 0.0 or force <= pull:
+            return contact
+        return np.concatenate([contact[:3] * (pull / force), contact[3:]])
+
     def master_wrench(self, contact: Array, base_rotation: Array, now: float) -> Array:
         """Return the master's wrench (6, master base frame) of a contact wrench at `now`."""
         settings = self.settings

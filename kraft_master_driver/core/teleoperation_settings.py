@@ -46,6 +46,7 @@ class Settings(NamedTuple):
     force_cutoff_hz: float = 0.0  # 0: no low-pass
     max_force: float = 10.0  # N, of the master's wrench
     max_moment: float = 1.0  # N*m
+    arm_stiffness: float = 0.0  # N/m of the arm's impedance: the force sent is at most its pull
     max_input_force: float = 1000.0  # N: a larger F/T reading is refused
     max_input_moment: float = 100.0  # N*m
     max_input_position: float = 10.0  # m: a pose farther from its base is refused

@@ -70,6 +70,10 @@ PARAMETERS = {
                              '(N*m/rad).', read_only=False, low=0.0, high=1e4, length=2),
     'centre_damping': Spec([0.0, 0.0], 'Return-to-centre damping: linear (N*s/m), angular '
                            '(N*m*s/rad).', read_only=False, low=0.0, high=1e3, length=2),
+    'contact_damping': Spec(0.0, 'Damping of the wrist in contact, per newton of the force '
+                            'reflected (N*s/m per N, i.e. s/m): none in free space; it keeps a '
+                            'stiff contact reflected through a lagging arm still.',
+                            read_only=False, low=0.0, high=100.0),
     'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain); '
                                  'the topic exists from the first time this is true.',
                                  read_only=False),

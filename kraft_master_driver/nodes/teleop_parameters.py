@@ -91,6 +91,10 @@ PARAMETERS = {
                           low=0.0, high=200.0),
     'max_moment': _tunable('max_moment', 'Largest moment sent to the master (N*m).',
                            low=0.0, high=20.0),
+    'arm_stiffness': _tunable('arm_stiffness', "Translational stiffness of the arm's impedance "
+                              '(N/m): the force sent is at most it times how far the command '
+                              "is from the measured tool, so the tool's impacts do not kick the "
+                              'master; 0: no limit.', low=0.0, high=1e6),
     'max_input_force': _tunable('max_input_force', 'A larger measured_cf force is refused '
                                 '(N).', low=1.0, high=1e5),
     'max_input_moment': _tunable('max_input_moment', 'A larger measured_cf moment is refused '

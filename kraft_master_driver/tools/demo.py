@@ -74,7 +74,11 @@ BRIDGE = {'rate_hz': 500.0, 'orientation': 'fixed', 'master_timeout': 2.0, 'arm_
 # arm, within its reach hand down, that reaches 5 cm into the table. Its stroke down from the
 # start commands the hand 43 mm past the top, pressing the table with the controller's 1000 N/m.
 MUJOCO_BRIDGE = {**BRIDGE, 'tool_mass': 1.0045, 'tool_com': [0.0, -0.0005, 0.0431],
+                 'arm_stiffness': MUJOCO_ARM_PARAMETERS['translational_stiffness'].default,
                  'workspace_min': [0.2, -0.3, 0.35], 'workspace_max': [0.5, 0.3, 0.55]}
+# The driver for the Panda (teleop.launch.py's too): a damper as strong as the force felt
+# keeps the table's contact, reflected through the arm's lag, still at 2500 and 5000 N/m too.
+MUJOCO_DRIVER = {'contact_damping': 6.0}
 TELEOP = [sys.executable, '-m', 'kraft_master_driver.nodes.teleop', '--ros-args']
 DRIVER_NAME = 'kraft_master_node'
 MAX_WRENCH_AGE_S = DRIVER_PARAMETERS['max_wrench_age'].default
@@ -377,7 +381,8 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
                  '-p', f'to_slave.delay:={one_way}', '-p', f'to_master.delay:={one_way}'],
                 stdout=log.file, **child))
         processes[:0] = [
-            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age],
+            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age,
+                              *ros_parameters(MUJOCO_DRIVER if mujoco else {})],
                              stdout=log.file, **child),
             subprocess.Popen([*TELEOP, *ros_parameters(MUJOCO_BRIDGE if mujoco else BRIDGE),
                               *passive],

@@ -145,6 +145,7 @@ class Arm(NamedTuple):
     start: np.ndarray  # m, its tool's position at start (arm base frame)
     surface: np.ndarray  # m, a point of the surface it meets (arm base frame)
     surface_below: float  # m from its start down to the surface
+    driver: tuple = ()  # (name, value) the driver needs for this arm
 
 
 def point_mass_arm():
@@ -161,25 +162,27 @@ def panda_arm():
     """Return the MuJoCo Panda (kraft_master_arm_sim, its defaults) and its table."""
     # MuJoCo and the demo's settings only where the Panda is asked for.
     from kraft_master_driver.simulation.arms.panda import PandaArm
-    from kraft_master_driver.tools.demo import BRIDGE as DEMO_BRIDGE, MUJOCO_BRIDGE, TABLE_Z
+    from kraft_master_driver.tools.demo import (
+        BRIDGE as DEMO_BRIDGE, MUJOCO_BRIDGE, MUJOCO_DRIVER, TABLE_Z)
     start = PandaArm().tool_position()
     # The bridge as the demo sets it for the Panda: its tool, the box in front of it.
     bridge = tuple((name, value) for name, value in MUJOCO_BRIDGE.items()
                    if name not in DEMO_BRIDGE)
     return Arm('kraft_master_arm_sim', (), bridge, start,
-               np.array([start[0], start[1], TABLE_Z]), float(start[2] - TABLE_Z))
+               np.array([start[0], start[1], TABLE_Z]), float(start[2] - TABLE_Z),
+               tuple(MUJOCO_DRIVER.items()))
 
 
 ARMS = {'point-mass': point_mass_arm, 'mujoco': panda_arm}
 
 
 def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past=PAST,
-            arm_parameters=()):
+            arm_parameters=(), bridge_parameters=()):
     """
     Run one session on two hosts; return its figures (NamespacesRefused if not allowed).
 
     `past`: m the operator's hand aims past the arm's surface; `arm_parameters`: (name, value)
-    given to the arm's node besides its own.
+    given to the arm's node besides its own; `bridge_parameters`: likewise, the bridge's.
     """
     arm = ARMS[arm]()
     simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000, transport='tcp')
@@ -209,7 +212,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past
             start(master_host, prefix, master_domain, 'kraft_master_node', [
                 ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
                 ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
-                ('passivity', on), ('max_wrench_age', MAX_WRENCH_AGE_S + one_way)])
+                ('passivity', on), ('max_wrench_age', MAX_WRENCH_AGE_S + one_way), *arm.driver])
             if not direct:
                 start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
                     ('slave_domain_id', slave_domain), ('seed', seed),
@@ -218,7 +221,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past
                     ('to_slave.delay', one_way), ('to_master.delay', one_way),
                     ('to_slave.loss', loss), ('to_master.loss', loss)])
             start(slave_host, prefix, slave_domain, 'kraft_master_teleop', [
-                ('passivity', on), *BRIDGE.items(), *arm.bridge])
+                ('passivity', on), *BRIDGE.items(), *arm.bridge, *bridge_parameters])
             # The arm starts where the master's wrist rests: the bridge registers the two there.
             start(slave_host, prefix, slave_domain, arm.executable,
                   [*arm.parameters, *arm_parameters])

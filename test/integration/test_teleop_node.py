@@ -439,8 +439,9 @@ RUN_TIME_VALUES = {
     'max_tracking_error': 0.1, 'max_tracking_angle': 0.6, 'tool_mass': 0.5,
     'tool_com': [0.0, 0.0, 0.05], 'gravity': [0.0, 0.0, -9.8], 'force_scale': 3.0,
     'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1, 'force_cutoff_hz': 5.0,
-    'max_force': 2.0, 'max_moment': 0.2, 'max_input_force': 500.0, 'max_input_moment': 50.0,
-    'max_input_position': 5.0, 'passivity': True, 'drift_gain': 5.0, 'force_feedback': False}
+    'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0, 'max_input_force': 500.0,
+    'max_input_moment': 50.0, 'max_input_position': 5.0, 'passivity': True, 'drift_gain': 5.0,
+    'force_feedback': False}
 # A steady contact along z, across the master's motion along x (no work for passivity to
 # book), with a moment about z.
 PRESSED = np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.2])

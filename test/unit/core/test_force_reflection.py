@@ -284,6 +284,29 @@ def test_spring_and_damper_add_to_the_scaled_task_wrench():
     np.testing.assert_allclose(out.actuator, (jac.T @ total)[:5], rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize('seed', range(5))
+def test_contact_damping_grows_with_the_force_and_takes_only_energy(seed):
+    rng = np.random.default_rng(320 + seed)
+    theta = random_theta(rng)
+    _, rotation, jac = pose_and_jacobian(theta)
+    theta_dot = np.append(rng.normal(size=5), 0.0)
+    twist = jac @ theta_dot
+    fr = reflection(coupling='joint', contact_damping=2.0)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
+    out = fr.compute(rotation, jac, T0, cartesian_velocity=twist)
+    gain = 2.0 * np.linalg.norm(WRENCH[:3])  # N*s/m: 2 s/m times the force
+    total = np.array(WRENCH) - np.concatenate((gain * twist[:3], np.zeros(3)))
+    np.testing.assert_allclose(out.actuator, (jac.T @ total)[:5], rtol=1e-12, atol=1e-12)
+    # Its power is -gain |v|^2: it only takes energy; without a force there is none.
+    plain = reflection(coupling='joint')
+    plain.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
+    undamped = plain.compute(rotation, jac, T0, cartesian_velocity=twist)
+    extra = np.dot(np.array(out.joint) - np.array(undamped.joint), theta_dot)
+    assert math.isclose(extra, -gain * twist[:3] @ twist[:3], rel_tol=1e-9)
+    fr.hold(WrenchInput(ZERO6, BASE_FRAME, T0))
+    assert fr.compute(rotation, jac, T0, cartesian_velocity=twist).actuator == ZERO5
+
+
 @pytest.mark.parametrize('name, value', [
     ('force_scale', -1.0), ('force_scale', nan), ('force_scale', inf), ('force_scale', '2'),
     ('force_scale', True),
@@ -295,6 +318,7 @@ def test_spring_and_damper_add_to_the_scaled_task_wrench():
     ('wrench_timeout', nan),
     ('centre_stiffness', (1.0,)), ('centre_stiffness', (-1.0, 0.0)),
     ('centre_damping', (nan, 0.0)), ('centre_damping', (0.0, 0.0, 0.0)),
+    ('contact_damping', -1.0), ('contact_damping', inf),
     ('enabled', 'yes'), ('enabled', 1),
 ])
 def test_bad_settings_raise_naming_the_setting_and_change_nothing(name, value):

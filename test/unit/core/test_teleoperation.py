@@ -284,6 +284,21 @@ def test_force_is_scaled_dead_banded_and_limited():
     np.testing.assert_allclose(bridge.master_wrench(session.now), [3.0, 0, 0, 0, 0, 1.0])
 
 
+def test_the_force_sent_is_at_most_the_pull_of_the_arms_impedance():
+    session = Session(arm_stiffness=1000.0).enabled()
+    bridge = session.bridge
+    # The arm measured 2 mm short of its command: its spring pulls with 2 N.
+    session.follow((0.0, 0.0, -0.002))
+    session.feed(master=(0.0, 0.0, -0.002), arm=ARM_HOME, reading=(0.0, 0.0, 5.0, 0, 0.3, 0))
+    np.testing.assert_allclose(bridge.master_wrench(session.now), [0, 0, 2.0, 0, 0.3, 0])
+    # Within the pull the force passes whole; without arm_stiffness there is no limit.
+    session.feed(reading=(0.0, 0.0, 1.5, 0, 0, 0))
+    np.testing.assert_allclose(bridge.master_wrench(session.now), [0, 0, 1.5, 0, 0, 0])
+    free = Session().enabled()
+    free.follow((0.0, 0.0, 0.0), reading=(0.0, 0.0, 5.0, 0, 0, 0))
+    np.testing.assert_allclose(free.bridge.master_wrench(free.now), [0, 0, 5.0, 0, 0, 0])
+
+
 def test_the_low_pass_follows_a_step_at_its_cutoff():
     session = Session(force_cutoff_hz=10.0).enabled()
     bridge = session.bridge
@@ -527,8 +542,9 @@ NEW_VALUES = {
     'max_tracking_error': 0.1, 'max_tracking_angle': 0.6, 'force_feedback': False,
     'tool_mass': 0.5, 'tool_com': (0.0, 0.0, 0.05), 'gravity': (0.0, 0.0, -9.8),
     'force_scale': 3.0, 'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1,
-    'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'max_input_force': 500.0,
-    'max_input_moment': 50.0, 'max_input_position': 5.0, 'passivity': True, 'drift_gain': 5.0}
+    'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0,
+    'max_input_force': 500.0, 'max_input_moment': 50.0, 'max_input_position': 5.0,
+    'passivity': True, 'drift_gain': 5.0}
 PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
 MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
 

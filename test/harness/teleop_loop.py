@@ -1,0 +1,232 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The whole teleoperation chain on the MuJoCo Panda in simulated time: no DDS, no machine.
+
+The same classes as the live chain, stepped together every millisecond: the simulated hand
+controller and the operator's hand (DeviceModel), the driver's VelocityFilter, WrenchAdmission,
+ForceReflection and MasterPort at 1 kHz; the bridge's Teleoperation (its motion, slave port and
+force path) on each message as it arrives and its tick at 500 Hz; the Panda (PandaArm, 1 ms
+steps) giving its pose and F/T reading at 500 Hz, as its node publishes them. Between the two
+sides each message waits exactly its one-way delay (half the round trip plus `latency_ms`, the
+hops' own time) and is lost with the given probability. The operator's hand pushes the master
+down through the table, holds, and lets go. What it shows is the physics of the loop, the same
+on a busy machine as on an idle one.
+"""
+import collections
+import math
+import random
+from typing import NamedTuple
+
+from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_reflection import ForceReflection
+from kraft_master_driver.core.passivity import MasterPort
+from kraft_master_driver.core.teleoperation import Teleoperation
+from kraft_master_driver.core.teleoperation_settings import Settings
+from kraft_master_driver.core.velocity_filter import VelocityFilter
+from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchAdmission
+from kraft_master_driver.simulation.arms.panda import Gains, PandaArm, Table
+from kraft_master_driver.simulation.master.model import (
+    DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
+from kraft_master_driver.tools.demo import MUJOCO_BRIDGE, MUJOCO_DRIVER
+import numpy as np
+
+ARM = 'right'
+DT = 0.001  # s: the device's cycle and the Panda's step
+ARM_PERIOD = 2  # ms between the arm's measured_cp and measured_cf (its publish_rate_hz, 500)
+TICK_PERIOD = 2  # ms between the bridge's ticks (its rate_hz, 500)
+REST, RAMP, HOLD, WINDOW, RELEASE = 0.2, 1.0, 4.0, 2.0, 1.0  # s
+NORMAL = np.array([0.0, 0.0, 1.0])
+FREE_SPACE = 0.002  # m: the hand's tip at least this far above the table is in free space
+# The bridge as the demo runs it on the Panda, its force limit raised so that the deepest
+# press is reflected whole (the bridge's default 10 N would clip it).
+BRIDGE_SETTINGS = {name: value for name, value in MUJOCO_BRIDGE.items()
+                   if name in Settings._fields}
+MAX_FORCE = 60.0  # N
+
+
+class Session(NamedTuple):
+    """One run: the link, passivity, the arm's stiffness and the operator's push."""
+
+    round_trip_ms: float = 0.0
+    loss: float = 0.0
+    passivity: bool = False
+    stiffness: float = 1000.0  # N/m: the Panda's translational stiffness
+    past: float = 0.025  # m the operator's hand aims past the table top
+    latency_ms: float = 1.0  # ms each way beyond the emulated delay: DDS and the ticks
+    contact_damping: float = MUJOCO_DRIVER['contact_damping']  # s/m, the driver's
+    seed: int = 0  # of the losses
+    hold: float = HOLD  # s
+
+
+class _Link:
+    """One direction of the network: each message waits its delay; some are lost."""
+
+    def __init__(self, delay, loss, rng):
+        self.delay, self.loss, self.rng = delay, loss, rng
+        self.queue = collections.deque()
+
+    def send(self, now, message):
+        if self.rng.random() >= self.loss:
+            self.queue.append((now + self.delay, message))
+
+    def due(self, now):
+        while self.queue and self.queue[0][0] <= now + 1e-9:
+            yield self.queue.popleft()[1]
+
+
+def _actuator_target(home_theta, depth):
+    """Return the actuator coordinates with the wrist `depth` m below home."""
+    theta = home_theta.copy()
+    goal = kinematics.forward(home_theta, ARM)[:3, 3] - depth * NORMAL
+    for _ in range(20):
+        pose, jacobian = kinematics.forward_and_jacobian(theta, ARM)
+        theta[:3] += np.linalg.lstsq(jacobian[:3, :3], goal - pose[:3, 3], rcond=None)[0]
+    return joints_to_actuators(theta)
+
+
+class _Master:
+    """The driver's side: the device and the hand, the force path and the master port."""
+
+    def __init__(self, passivity, home_theta, contact_damping):
+        self.model = DeviceModel(DEFAULT_DYNAMICS, home_theta)
+        self.reflection = ForceReflection(contact_damping=contact_damping, enabled=True)
+        self.admission = WrenchAdmission()
+        self.velocity_filter = VelocityFilter(50.0)
+        self.port = MasterPort()
+        self.port.enabled = passivity
+        self.previous = None
+        self.felt = 0.0
+
+    def cycle(self, t, hand, to_arm, to_master):
+        """Read, book, send the pose and energy, take the wrenches, apply torques, step."""
+        now_ns = round(t * 1e9)
+        port = self.port
+        theta = self.model.joint_angle_list()
+        pose, entries = kinematics.forward_and_jacobian_entries(theta, ARM)
+        jacobian = [entries[row:row + 6] for row in range(0, 36, 6)]
+        velocity = self.velocity_filter.update(theta, now_ns)
+        twist = [sum(a * b for a, b in zip(row, velocity)) for row in jacobian]
+        if self.previous is not None:
+            step = [a - b for a, b in zip(theta, self.previous)]
+            port.moved([sum(a * b for a, b in zip(row, step)) for row in jacobian])
+        self.previous = theta
+        to_arm.send(t, ((pose[3], pose[7], pose[11]), port.energy_in))
+        for wrench, energy in to_master.due(t):
+            if wrench is not None:
+                self.reflection.hold(self.admission.admit(wrench, BASE_FRAME, 0, now_ns, 0))
+            port.credit(energy)
+        out = self.reflection.compute((pose[0:3], pose[4:7], pose[8:11]), jacobian, now_ns,
+                                      cartesian_velocity=twist, port=port)
+        self.felt = _felt(theta, out.actuator)
+        self.model.motor[:5] = list(out.actuator)
+        self.model.step(DT, hand)
+        return np.array((pose[3], pose[7], pose[11]))
+
+
+def _felt(theta, actuator):
+    """Return the force along the normal that the torques sent amount to at the wrist (N)."""
+    t1, t2, t3, t4, t5 = actuator
+    joint = np.array([t1, t2 + t3, t3, t4, t5])
+    jacobian = kinematics.jacobian(np.array(theta), ARM)
+    return float(np.linalg.lstsq(jacobian[:3, :5].T, joint, rcond=None)[0] @ NORMAL)
+
+
+def _arm_millisecond(k, t, arm, bridge, to_arm, to_master):
+    """One millisecond on the arm's side: messages in, the Panda's step, its outputs."""
+    settings = bridge.settings
+    for position, energy in to_arm.due(t):
+        bridge.master_energy(energy)
+        out = bridge.master_pose(settings.master_frame, position, (0.0, 0.0, 0.0, 1.0), t)
+        if out.command is not None:
+            arm.command_pose(out.command[:3], out.command[3:], t)
+    arm.step(t)
+    if k % ARM_PERIOD == 0:
+        bridge.arm_pose(settings.arm_frame, arm.tool_position(), arm.tool_quaternion(), t)
+        out = bridge.ft_reading(settings.ft_frame, arm.wrench(), t)
+        if out.wrench is not None:
+            to_master.send(t, (tuple(out.wrench), bridge.port.energy_in))
+        if bridge.master is not None and not bridge.following:
+            bridge.enable(t)  # at the master's first pose, where the demo enables it
+    if k % TICK_PERIOD == 1:
+        out = bridge.tick(t)
+        if out.command is not None:
+            arm.command_pose(out.command[:3], out.command[3:], t)
+        to_master.send(t, (None if out.wrench is None else tuple(out.wrench),
+                           bridge.port.energy_in))
+
+
+def run(session=Session()):
+    """
+    Run one push, hold and release; return (log, master port, slave port).
+
+    The log has one row per millisecond: time (s); how far past the table top (m, > 0 below
+    it) the master's wrist is, mapped onto the arm, the arm's command and the hand's tip; the
+    table's force on the hand along the normal (N); the force felt along the normal (N, from
+    the torques sent).
+    """
+    rng = random.Random(session.seed)
+    home_theta = Workspace().home()
+    home = kinematics.forward(home_theta, ARM)[:3, 3]
+    table = Table()
+    arm = PandaArm(table=table, gains=Gains(translational_stiffness=session.stiffness))
+    start = arm.tool_position()
+    settings = Settings(**{**BRIDGE_SETTINGS, 'max_force': MAX_FORCE,
+                           'passivity': session.passivity,
+                           'arm_stiffness': session.stiffness})
+    bridge = Teleoperation(settings)
+    master = _Master(session.passivity, home_theta, session.contact_damping)
+    one_way = (session.round_trip_ms / 2.0 + session.latency_ms) / 1e3
+    to_arm, to_master = (_Link(one_way, session.loss, rng), _Link(one_way, session.loss, rng))
+    top = joints_to_actuators(home_theta)
+    pushed = _actuator_target(home_theta, start[2] - table.height + session.past)
+    phases = ((top, top, REST), (top, pushed, RAMP), (pushed, pushed, session.hold),
+              (pushed, top, RELEASE))
+    log = []
+    k = 0
+    for begin, end, seconds in phases:
+        steps = round(seconds / DT)
+        for step in range(steps):
+            t = k * DT
+            blend = 0.5 - 0.5 * math.cos(math.pi * step / steps)
+            wrist = master.cycle(t, (begin + blend * (end - begin)).tolist(), to_arm, to_master)
+            _arm_millisecond(k, t, arm, bridge, to_arm, to_master)
+            command = bridge.motion.command
+            command_z = start[2] if command is None else command.position[2]
+            log.append((t, table.height - (start[2] + wrist[2] - home[2]),
+                        table.height - command_z, table.height - arm.tool_position()[2],
+                        arm.table_contact_force() @ NORMAL, master.felt))
+            k += 1
+    return np.array(log), master.port, bridge.port
+
+
+def figures(session=Session()):
+    """
+    Return what one session measured, in SI units, as a dict.
+
+    Over the last WINDOW s of the hold: the master's peak-to-peak along the normal, how far
+    past the table it is, the table's force and the force felt (means), their ratio, the
+    stiffness felt (force felt over how far the master is past the table), the drift (the
+    mapped master less the arm's command along the normal). Over the push while the hand is
+    in free space: the largest force felt (drag). Over the run: the energy the channel
+    generated by the ports' books (out at both ports less in at both).
+    """
+    log, master_port, slave_port = run(session)
+    t = log[:, 0]
+    hold_end = REST + RAMP + session.hold
+    hold = (t >= hold_end - WINDOW) & (t < hold_end)
+    push = (t >= REST) & (t < REST + RAMP) & (log[:, 3] < -FREE_SPACE)
+    master_past, table_force, felt = (log[hold, 1].mean(), log[hold, 4].mean(),
+                                      log[hold, 5].mean())
+    return {
+        'master_pp': float(np.ptp(log[hold, 1])),
+        'master_past': float(master_past),
+        'table_force': float(table_force),
+        'felt_force': float(felt),
+        'felt_ratio': float(felt / table_force) if table_force > 0.0 else math.nan,
+        'felt_stiffness': float(felt / master_past) if master_past > 0.0 else math.nan,
+        'drift': float((log[hold, 1] - log[hold, 2]).mean()),
+        'free_space_drag': float(np.abs(log[push, 5]).max()) if push.any() else math.nan,
+        'energy_generated': (master_port.energy_out + slave_port.energy_out
+                             - master_port.energy_in - slave_port.energy_in),
+    }

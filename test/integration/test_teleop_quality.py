@@ -1,0 +1,25 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""A short contact on the MuJoCo Panda in simulated time (harness/teleop_loop.py), no processes."""
+from harness.teleop_loop import figures, Session
+import pytest
+
+pytestmark = pytest.mark.slow
+PUSH = {'past': 0.025, 'hold': 3.0}
+
+
+@pytest.mark.parametrize('stiffness', [1000.0, 5000.0])
+def test_at_0_ms_plain_force_reflection_holds_still_and_is_felt(stiffness):
+    result = figures(Session(stiffness=stiffness, **PUSH))
+    assert result['master_pp'] <= 0.0005
+    assert result['felt_ratio'] >= 0.9
+    assert result['felt_stiffness'] >= 0.9 * stiffness * 20000.0 / (stiffness + 20000.0)
+    assert result['free_space_drag'] <= 0.5
+
+
+def test_at_250_ms_passivity_keeps_the_contact_that_plain_force_reflection_shakes():
+    plain = figures(Session(round_trip_ms=250.0, **PUSH))
+    passive = figures(Session(round_trip_ms=250.0, passivity=True, **PUSH))
+    assert plain['master_pp'] > 0.02 and plain['energy_generated'] > 0.5
+    assert passive['master_pp'] < 0.005
+    assert passive['energy_generated'] <= 0.0
