@@ -249,13 +249,17 @@ def test_return_to_centre_spring_pushes_back_toward_the_centre(seed):
     assert plain.compute(rotation, jac, T0, pose=pose, centre=centre).actuator == ZERO5
 
 
+def moving(seed):
+    """Return (rotation, jacobian, joint rates, wrist twist) of a random pose and motion."""
+    rng = np.random.default_rng(seed)
+    _, rotation, jac = pose_and_jacobian(random_theta(rng))
+    theta_dot = np.append(rng.normal(size=5), 0.0)
+    return rotation, jac, theta_dot, jac @ theta_dot
+
+
 @pytest.mark.parametrize('seed', range(10))
 def test_damping_opposes_velocity(seed):
-    rng = np.random.default_rng(300 + seed)
-    theta = random_theta(rng)
-    _, rotation, jac = pose_and_jacobian(theta)
-    theta_dot = np.append(rng.normal(size=5), 0.0)
-    twist = jac @ theta_dot
+    rotation, jac, theta_dot, twist = moving(300 + seed)
     damping = (8.0, 0.05)
     fr = reflection(coupling='actuator', centre_damping=damping)
     fr.hold(WrenchInput(ZERO6, BASE_FRAME, T0))
@@ -286,11 +290,7 @@ def test_spring_and_damper_add_to_the_scaled_task_wrench():
 
 @pytest.mark.parametrize('seed', range(5))
 def test_contact_damping_grows_with_the_force_and_takes_only_energy(seed):
-    rng = np.random.default_rng(320 + seed)
-    theta = random_theta(rng)
-    _, rotation, jac = pose_and_jacobian(theta)
-    theta_dot = np.append(rng.normal(size=5), 0.0)
-    twist = jac @ theta_dot
+    rotation, jac, theta_dot, twist = moving(320 + seed)
     fr = reflection(coupling='joint', contact_damping=2.0)
     fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     out = fr.compute(rotation, jac, T0, cartesian_velocity=twist)
