@@ -140,7 +140,10 @@ def test_policy_names_exactly_the_endpoints_of_the_running_nodes(running_nodes):
                                   if p.get('ns') == '/right' and p.get('node') == node))
                 for path, node in ((DRIVER, 'kraft_master_node'), (SLAVE, 'kraft_master_teleop'),
                                    (SLAVE, 'kraft_master_slave_sim'))}
-    driver = running_nodes('kraft_master_node', 'kraft_master_node', [('port', 'sim')])
+    # rate_command is advertised once rate_command_enabled is true (at start or at run time):
+    # the policy allows it, so the driver runs with it on.
+    driver = running_nodes('kraft_master_node', 'kraft_master_node',
+                           [('port', 'sim'), ('rate_command_enabled', 'true')])
     # The bridge's and the arm's endpoints depend on their mode (and the bridge's joy on its
     # clutch_button): the policy allows both modes.
     bridge_modes = [running_nodes('kraft_master_teleop', 'kraft_master_teleop', parameters)

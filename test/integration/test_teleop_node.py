@@ -535,7 +535,9 @@ def test_every_run_time_parameter_is_set_while_following_without_a_jump_or_a_kic
         assert steps.max() < POT_COUNT_TRAVEL, f'{name}: the target jumped {steps.max():.6f} m'
         times, wrenches = stamps(wrenches), wrench_values(wrenches)
         change = np.abs(wrenches[-1] - wrenches[0])
-        allowed = np.outer(np.diff(times) + STAMP_SLACK_S, change) / RAMP_S + 1e-9
+        # 1 uN beyond the ramp: the low-pass (force_cutoff_hz, set before) still settles by
+        # about 3e-7 N a step half a second on, no kick.
+        allowed = np.outer(np.diff(times) + STAMP_SLACK_S, change) / RAMP_S + 1e-6
         kicks = np.abs(np.diff(wrenches, axis=0))
         assert np.all(kicks <= allowed), (
             f'{name}: the wrench stepped {kicks.max(axis=0).tolist()} of {change.tolist()}')
