@@ -55,6 +55,7 @@ class Session(NamedTuple):
     past: float = 0.025  # m the operator's hand aims past the table top
     latency_ms: float = 1.0  # ms each way beyond the emulated delay: DDS and the ticks
     contact_damping: float = MUJOCO_DRIVER['contact_damping']  # s/m, the driver's
+    limits_pull: bool = True  # the bridge's arm_stiffness set to the arm's (False: 0, no limit)
     seed: int = 0  # of the losses
     hold: float = HOLD  # s
 
@@ -173,7 +174,7 @@ def run(session=Session()):
     start = arm.tool_position()
     settings = Settings(**{**BRIDGE_SETTINGS, 'max_force': MAX_FORCE,
                            'passivity': session.passivity,
-                           'arm_stiffness': session.stiffness})
+                           'arm_stiffness': session.stiffness if session.limits_pull else 0.0})
     bridge = Teleoperation(settings)
     master = _Master(session.passivity, home_theta, session.contact_damping)
     one_way = (session.round_trip_ms / 2.0 + session.latency_ms) / 1e3
