@@ -44,6 +44,9 @@ FREE_SPACE = 0.002  # m: the hand's tip at least this far above the table is in 
 BRIDGE_SETTINGS = {name: value for name, value in MUJOCO_BRIDGE.items()
                    if name in Settings._fields}
 MAX_FORCE = 60.0  # N
+# Passivity as doc/passivity.md has it feel the contact at 0 ms: the slave port books the force
+# sent, the master port a 5 N*s/m damper (0.5 N of drag at 100 mm/s).
+SENT_BOOKS = {'passivity': True, 'slave_port_force': 'sent', 'passivity_damping': 5.0}
 
 
 class Session(NamedTuple):

@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """A short contact on the MuJoCo Panda in simulated time (harness/teleop_loop.py), no processes."""
-from harness.teleop_loop import figures, Session
+from harness.teleop_loop import figures, SENT_BOOKS, Session
 import pytest
 
 pytestmark = pytest.mark.slow
@@ -20,8 +20,7 @@ def test_at_0_ms_plain_force_reflection_holds_still_and_is_felt(stiffness):
 @pytest.mark.parametrize('stiffness', [1000.0, 5000.0])
 def test_at_0_ms_passivity_booking_the_force_sent_holds_still_and_is_felt(stiffness):
     # doc/passivity.md: the slave port books the force sent, the master port a light damper.
-    result = figures(Session(stiffness=stiffness, passivity=True, slave_port_force='sent',
-                             passivity_damping=5.0, **PUSH))
+    result = figures(Session(stiffness=stiffness, **SENT_BOOKS, **PUSH))
     assert result['master_pp'] <= 0.0005
     assert result['felt_ratio'] >= 0.9
     assert result['felt_stiffness'] >= 0.8 * stiffness * 20000.0 / (stiffness + 20000.0)
