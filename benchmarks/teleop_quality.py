@@ -60,8 +60,8 @@ def main(argv=None):
     parser.add_argument('--past', type=float, nargs='+', default=(25, 40),
                         help="how far the operator's hand aims past the table (mm)")
     parser.add_argument('--passivity', choices=('off', 'contact', 'sent', 'all'), default='all',
-                        help="off; on, the slave port booking the contact force; on, booking "
-                        "the force sent (SENT_BOOKS)")
+                        help='off; on, the slave port booking the contact force; on, booking '
+                        'the force sent (SENT_BOOKS)')
     parser.add_argument('--runs', type=int, default=3,
                         help='seeds of the losses in each 0 ms cell')
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
