@@ -50,6 +50,9 @@ class Port(Protocol):
              now_ns: int) -> Sequence[float]:
         """Return the wrench (6 floats) to apply in place of `force` until the next sample."""
 
+    def damped(self, velocity: Sequence[float]) -> list[float]:
+        """Return the port's own damper wrench (6 floats), booked with step()'s wrench."""
+
     def scaled(self, factor: float) -> None:
         """Note that the last wrench was applied scaled by `factor` (0..1)."""
 
@@ -253,7 +256,8 @@ class ForceReflection:
         cartesian_velocity (vx, vy, vz, wx, wy, wz of the wrist in {0}, i.e. 0J dtheta) its
         damper; each acts only while its coefficients are non-zero and its inputs given.
         port (passivity.MasterPort), with cartesian_velocity, limits the reflected wrench to
-        the energy the far end has sent, before the centre terms and the torque limits.
+        the energy the far end has sent, before the centre terms and the torque limits, and
+        adds its damper (MasterPort.damped), after contact_damping.
         """
         hot = self._hot
         settings = hot.settings
@@ -299,6 +303,9 @@ class ForceReflection:
             gain = settings.contact_damping * math.sqrt(fx * fx + fy * fy + fz * fz)
             vx, vy, vz = _as_lists(cartesian_velocity)[:3]
             wrench = [fx - gain * vx, fy - gain * vy, fz - gain * vz, *wrench[3:]]
+        if port is not None and cartesian_velocity is not None:
+            damper = port.damped(_as_lists(cartesian_velocity))
+            wrench = [w + d for w, d in zip(wrench, damper)]
 
         # Plain floats: a few tolist() calls beat a chain of tiny numpy operations here.
         columns = list(zip(*_as_lists(jacobian)))

@@ -99,11 +99,16 @@ class MasterPort(PortEnergy):
     missed is paid first from `reserve`: up to MASTER_RESERVE_J of the hand's own energy in,
     kept at this port (a passive store: it only gives back what it got), never sent as credit.
     Beyond the reserve, the wrench fades out as the deficit grows to MASTER_RESERVE_J.
+
+    damped() adds a light damper on the wrist's translation, booked with the wrench: the
+    energy the hand puts into it is energy in (it fills the reserve, then goes as credit), so
+    the slave port has credit to press before the contact's force has crossed back.
     """
 
-    def __init__(self) -> None:
-        """Start idle with an empty reserve; the first step() only sets the clock."""
+    def __init__(self, damping: float = 0.0) -> None:
+        """damping: N*s/m of the booked damper; start idle, the first step() sets the clock."""
         super().__init__()
+        self.damping = float(damping)
         self.reserve = 0.0
         self._applied: Sequence[float] | None = None  # the wrench applied since the last sample
         self._last_ns: int | None = None
@@ -154,6 +159,18 @@ class MasterPort(PortEnergy):
             self.dissipated += excess
         self._applied = force
         return force
+
+    def damped(self, velocity: Sequence[float]) -> list[float]:
+        """
+        Return the damper's wrench (6 floats) at `velocity`, booked with the wrench step() gave.
+
+        Zeros while passivity is off or before step(): only a port that books it harvests.
+        """
+        if not self.enabled or self._applied is None or not self.damping:
+            return [0.0] * 6
+        damper = [-self.damping * v for v in velocity[:3]] + [0.0, 0.0, 0.0]
+        self._applied = [f + d for f, d in zip(self._applied, damper)]
+        return damper
 
     def scaled(self, factor: float) -> None:
         """Note that the last wrench was applied scaled by `factor` (0..1)."""

@@ -104,6 +104,7 @@ class Teleoperation:
         self.motion = Motion(settings, checked_settings.box, self.port)
         self.force = ForcePath(settings, checked_settings.sensor_rotation)
         self._ramp: Optional[WrenchRamp] = None  # the force path before a change, while ramping
+        self._sent_force = np.zeros(3)  # N, master base frame: the last wrench's force sent
         self.state = OperatingState.DISABLED
         self.reason = 'not enabled'
         self.clutch_pressed = False
@@ -315,7 +316,7 @@ class Teleoperation:
             else:
                 assert previous is not None  # the registration took a master pose
                 self.motion.follow(pose, min(now - previous[1], MAX_STEP), self.base_rotation,
-                                   self._environment_force())
+                                   self._port_force())
         return self._outputs(self._command() if self.following else None)
 
     def arm_pose(self, frame_id: str, position: Floats, quaternion: Floats,
@@ -388,8 +389,18 @@ class Teleoperation:
         assert self.reading is not None and self.arm is not None
         return self.force.contact_wrench(self.reading[0], self.arm[0].rotation)
 
-    def _environment_force(self) -> Array:
-        """Return the contact force (3, arm base frame) the slave port books; zeros if none."""
+    def _port_force(self) -> Array:
+        """
+        Return the force (3, arm base frame) the slave port books; zeros if none.
+
+        slave_port_force 'contact': the F/T contact force. 'sent': the force of the last wrench
+        sent to the master, in the arm's frame and divided by scale, so that against the arm's
+        commanded motion it is the power the master's port books against the master's motion:
+        both ends count one energy whatever the scales, the dead band, the low-pass and the
+        limits (a force that lags the command, as an arm's does, is booked as it is felt).
+        """
+        if self.settings.slave_port_force == 'sent':
+            return self.base_rotation @ self._sent_force / self.settings.scale
         if not self.settings.force_feedback or self.reading is None or self.arm is None:
             return np.zeros(3)
         return self.contact_wrench()[:3]
@@ -398,8 +409,10 @@ class Teleoperation:
         """Return the wrench for the master (6, master base frame); zeros unless following."""
         if self._ramp is not None and self._ramp.weight(now) == 1.0:
             self._ramp = None
-        return self._ramped(self.force, self.settings.force_feedback, self.base_rotation,
-                            self._ramp, now)
+        wrench = self._ramped(self.force, self.settings.force_feedback, self.base_rotation,
+                              self._ramp, now)
+        self._sent_force = wrench[:3]
+        return wrench
 
     def _ramped(self, force: ForcePath, force_feedback: bool, base_rotation: Array,
                 ramp: Optional[WrenchRamp], now: float) -> Array:

@@ -5,7 +5,9 @@ The teleoperation bridge's force path, no ROS: the wrist F/T reading -> the mast
 
 The reading (the wrench the tool applies to the sensor, in the sensor's frame) less the tare
 bias and the tool's weight is the contact wrench. Turned into the arm's base frame, then into
-the master's, it is scaled, dead-banded, low-passed and limited in length.
+the master's, it is scaled, dead-banded, low-passed and limited in length. With
+slave_port_force 'sent', the moment is reflected only while the arm's orientation follows
+the master's.
 """
 import math
 from typing import Optional
@@ -85,8 +87,14 @@ class ForcePath:
         settings = self.settings
         back = base_rotation.T
         force = _dead_band(settings.force_scale * (back @ contact[:3]), settings.force_deadband)
-        moment = _dead_band(settings.moment_scale * (back @ contact[3:]),
-                            settings.moment_deadband)
+        # Booking the force sent, the master feels the arm's moment only if its rotation turns
+        # the arm: otherwise the moment turns the wrist for nothing, and no port books it.
+        reflects_moment = (settings.orientation == 'follow'
+                           or settings.slave_port_force == 'contact')
+        moment = np.zeros(3)
+        if reflects_moment:
+            moment = _dead_band(settings.moment_scale * (back @ contact[3:]),
+                                settings.moment_deadband)
         wrench = np.concatenate([force, moment])
         if settings.force_cutoff_hz > 0.0 and self._filtered_at is not None:
             dt = min(max(now - self._filtered_at, 0.0), MAX_STEP)

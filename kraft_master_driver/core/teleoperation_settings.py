@@ -9,6 +9,8 @@ import numpy.typing as npt
 
 MODES = ('pose', 'twist')
 ORIENTATIONS = ('follow', 'fixed', 'ignore')
+# The force passivity's slave port books against the arm's commanded motion.
+SLAVE_PORT_FORCES = ('contact', 'sent')
 MAX_STEP = 0.05  # s: a longer gap between two master poses, or two wrenches, is taken as this
 
 Array = npt.NDArray[np.float64]
@@ -52,6 +54,7 @@ class Settings(NamedTuple):
     max_input_position: float = 10.0  # m: a pose farther from its base is refused
     passivity: bool = False
     drift_gain: float = 2.0
+    slave_port_force: str = 'contact'  # one of SLAVE_PORT_FORCES
 
 
 class Checked(NamedTuple):
@@ -65,7 +68,9 @@ class Checked(NamedTuple):
 def checked(settings: Settings) -> Checked:
     """Return the rotations and the workspace box of the settings; ValueError names a bad one."""
     for name, value, choices in (('mode', settings.mode, MODES),
-                                 ('orientation', settings.orientation, ORIENTATIONS)):
+                                 ('orientation', settings.orientation, ORIENTATIONS),
+                                 ('slave_port_force', settings.slave_port_force,
+                                  SLAVE_PORT_FORCES)):
         if value not in choices:
             raise ValueError(f'{name} must be one of {", ".join(choices)}, got {value!r}')
     base_rotation = rotation_parameter('base_rotation', settings.base_rotation)

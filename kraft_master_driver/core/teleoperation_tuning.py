@@ -19,10 +19,10 @@ from kraft_master_driver.core.teleoperation_settings import Array, Settings
 
 RAMP_S = 0.5  # s over which a change of a force setting takes effect
 REGISTERING = frozenset({'scale', 'orientation', 'base_rotation', 'passivity'})
-FORCE = frozenset({'base_rotation', 'sensor_rotation', 'force_feedback', 'tool_mass',
-                   'tool_com', 'gravity', 'force_scale', 'moment_scale', 'force_deadband',
-                   'moment_deadband', 'force_cutoff_hz', 'max_force', 'max_moment',
-                   'arm_stiffness'})
+FORCE = frozenset({'orientation', 'slave_port_force', 'base_rotation', 'sensor_rotation',
+                   'force_feedback', 'tool_mass', 'tool_com', 'gravity', 'force_scale',
+                   'moment_scale', 'force_deadband', 'moment_deadband', 'force_cutoff_hz',
+                   'max_force', 'max_moment', 'arm_stiffness'})
 
 
 def changed(before: Settings, after: Settings) -> frozenset[str]:

@@ -61,7 +61,7 @@ class KraftMasterNode(Node):
             centre_damping=tuple(self.config['centre_damping']),
             contact_damping=self.config['contact_damping'])
         self.force.enabled = self.config['force_enabled_at_start']
-        self.master_port = MasterPort()
+        self.master_port = MasterPort(self.config['passivity_damping'])
         self.master_port.enabled = self.config['passivity']
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
 
@@ -207,6 +207,8 @@ class KraftMasterNode(Node):
             self.topics.advertise_rate_command()  # before the loop sees it enabled
         if 'passivity' in changes:
             self.master_port.enabled = changes['passivity']
+        if 'passivity_damping' in changes:
+            self.master_port.damping = changes['passivity_damping']
         if 'velocity_cutoff_hz' in changes:
             self.velocity.cutoff_hz = changes['velocity_cutoff_hz']
         if 'publish_decimation' in changes:

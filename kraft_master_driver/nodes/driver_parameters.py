@@ -96,4 +96,9 @@ PARAMETERS = {
                        'one source across both).'),
     'passivity': Spec(False, 'Time-domain passivity control of the reflected wrench, fed by '
                       'the slave_energy topic; false: plain J^T F.', read_only=False),
+    'passivity_damping': Spec(0.0, 'With passivity on, a damper on the wrist (N*s/m) whose '
+                              'energy the master port books as energy in: what the hand puts '
+                              'into it lets the arm press before the contact force has crossed '
+                              'back.',
+                              read_only=False, low=0.0, high=100.0),
 }

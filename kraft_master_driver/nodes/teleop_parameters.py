@@ -8,7 +8,8 @@ for the mode and the frames; what is fixed at start-up says why in its descripti
 """
 import math
 
-from kraft_master_driver.core.teleoperation_settings import MODES, ORIENTATIONS, Settings
+from kraft_master_driver.core.teleoperation_settings import (
+    MODES, ORIENTATIONS, Settings, SLAVE_PORT_FORCES)
 from kraft_master_driver.nodes.parameters import Spec
 
 _DEFAULT = Settings()
@@ -105,6 +106,11 @@ PARAMETERS = {
                           'fed by master_energy; a change registers anew.'),
     'drift_gain': _tunable('drift_gain', 'Rate at which passivity drift is given back (1/s).',
                            low=0.0, high=1000.0),
+    'slave_port_force': _tunable('slave_port_force', "The force passivity's slave port books "
+                                 "against the arm's command: 'contact', the F/T contact force; "
+                                 "'sent', the force sent to the master, in its units, and no "
+                                 "moment unless orientation is 'follow' (see doc/passivity.md).",
+                                 choices=SLAVE_PORT_FORCES),
     'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
                             'files); false: wait for the enable service. Fixed: it acts at '
                             'start-up.'),

@@ -73,7 +73,10 @@ BRIDGE = {'rate_hz': 500.0, 'orientation': 'fixed', 'master_timeout': 2.0, 'arm_
 # out of the reading (the arm node logs both figures), the target kept in a box in front of the
 # arm, within its reach hand down, that reaches 5 cm into the table. Its stroke down from the
 # start commands the hand 43 mm past the top, pressing the table with the controller's 1000 N/m.
+# The dead band keeps the sensor's reading of the hand's own inertia (0.3 N: 1 kg at 0.3 m/s^2)
+# off the master.
 MUJOCO_BRIDGE = {**BRIDGE, 'tool_mass': 1.0045, 'tool_com': [0.0, -0.0005, 0.0431],
+                 'force_deadband': 0.3,
                  'arm_stiffness': MUJOCO_ARM_PARAMETERS['translational_stiffness'].default,
                  'workspace_min': [0.2, -0.3, 0.35], 'workspace_max': [0.5, 0.3, 0.55]}
 # The driver for the Panda (teleop.launch.py's too): a damper as strong as the force felt

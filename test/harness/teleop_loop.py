@@ -25,6 +25,7 @@ from kraft_master_driver.core.teleoperation import Teleoperation
 from kraft_master_driver.core.teleoperation_settings import Settings
 from kraft_master_driver.core.velocity_filter import VelocityFilter
 from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchAdmission
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
 from kraft_master_driver.simulation.arms.panda import Gains, PandaArm, Table
 from kraft_master_driver.simulation.master.model import (
     DEFAULT_DYNAMICS, DeviceModel, joints_to_actuators, Workspace)
@@ -43,6 +44,9 @@ FREE_SPACE = 0.002  # m: the hand's tip at least this far above the table is in 
 BRIDGE_SETTINGS = {name: value for name, value in MUJOCO_BRIDGE.items()
                    if name in Settings._fields}
 MAX_FORCE = 60.0  # N
+# Passivity as doc/passivity.md has it feel the contact at 0 ms: the slave port books the force
+# sent, the master port a 5 N*s/m damper (0.5 N of drag at 100 mm/s).
+SENT_BOOKS = {'passivity': True, 'slave_port_force': 'sent', 'passivity_damping': 5.0}
 
 
 class Session(NamedTuple):
@@ -55,6 +59,8 @@ class Session(NamedTuple):
     past: float = 0.025  # m the operator's hand aims past the table top
     latency_ms: float = 1.0  # ms each way beyond the emulated delay: DDS and the ticks
     contact_damping: float = MUJOCO_DRIVER['contact_damping']  # s/m, the driver's
+    passivity_damping: float = DRIVER_PARAMETERS['passivity_damping'].default  # N*s/m
+    slave_port_force: str = Settings().slave_port_force  # what the bridge's slave port books
     limits_pull: bool = True  # the bridge's arm_stiffness set to the arm's (False: 0, no limit)
     seed: int = 0  # of the losses
     hold: float = HOLD  # s
@@ -89,13 +95,13 @@ def _actuator_target(home_theta, depth):
 class _Master:
     """The driver's side: the device and the hand, the force path and the master port."""
 
-    def __init__(self, passivity, home_theta, contact_damping):
+    def __init__(self, session, home_theta):
         self.model = DeviceModel(DEFAULT_DYNAMICS, home_theta)
-        self.reflection = ForceReflection(contact_damping=contact_damping, enabled=True)
+        self.reflection = ForceReflection(contact_damping=session.contact_damping, enabled=True)
         self.admission = WrenchAdmission()
         self.velocity_filter = VelocityFilter(50.0)
-        self.port = MasterPort()
-        self.port.enabled = passivity
+        self.port = MasterPort(session.passivity_damping)
+        self.port.enabled = session.passivity
         self.previous = None
         self.felt = 0.0
 
@@ -174,9 +180,10 @@ def run(session=Session()):
     start = arm.tool_position()
     settings = Settings(**{**BRIDGE_SETTINGS, 'max_force': MAX_FORCE,
                            'passivity': session.passivity,
+                           'slave_port_force': session.slave_port_force,
                            'arm_stiffness': session.stiffness if session.limits_pull else 0.0})
     bridge = Teleoperation(settings)
-    master = _Master(session.passivity, home_theta, session.contact_damping)
+    master = _Master(session, home_theta)
     one_way = (session.round_trip_ms / 2.0 + session.latency_ms) / 1e3
     to_arm, to_master = (_Link(one_way, session.loss, rng), _Link(one_way, session.loss, rng))
     top = joints_to_actuators(home_theta)

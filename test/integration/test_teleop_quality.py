@@ -1,7 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """A short contact on the MuJoCo Panda in simulated time (harness/teleop_loop.py), no processes."""
-from harness.teleop_loop import figures, Session
+from harness.teleop_loop import figures, SENT_BOOKS, Session
 import pytest
 
 pytestmark = pytest.mark.slow
@@ -15,6 +15,18 @@ def test_at_0_ms_plain_force_reflection_holds_still_and_is_felt(stiffness):
     assert result['felt_ratio'] >= 0.9
     assert result['felt_stiffness'] >= 0.9 * stiffness * 20000.0 / (stiffness + 20000.0)
     assert result['free_space_drag'] <= 0.5
+
+
+@pytest.mark.parametrize('stiffness', [1000.0, 5000.0])
+def test_at_0_ms_passivity_booking_the_force_sent_holds_still_and_is_felt(stiffness):
+    # doc/passivity.md: the slave port books the force sent, the master port a light damper.
+    result = figures(Session(stiffness=stiffness, **SENT_BOOKS, **PUSH))
+    assert result['master_pp'] <= 0.0005
+    assert result['felt_ratio'] >= 0.9
+    assert result['felt_stiffness'] >= 0.8 * stiffness * 20000.0 / (stiffness + 20000.0)
+    assert result['drift'] <= 0.002
+    assert result['free_space_drag'] <= 0.5
+    assert result['energy_generated'] <= 0.0
 
 
 def test_at_250_ms_passivity_keeps_the_contact_that_plain_force_reflection_shakes():

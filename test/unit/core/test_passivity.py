@@ -179,6 +179,46 @@ def test_force_reflection_with_passivity_limits_the_felt_force():
     assert out.actuator[0] == pytest.approx(5.0)
 
 
+def test_the_ports_damper_books_the_hands_work_as_energy_in():
+    # 5 N*s/m on the wrist moving at 0.1 m/s along x: -0.5 N, with no reflected force at all.
+    port = MasterPort(damping=5.0)
+    velocity = [0.1, 0.0, 0.0, 0.3, 0.0, 0.0]
+    assert port.damped(velocity) == [0.0] * 6, 'nothing before step()'
+    port.step([0.0] * 6, velocity, 0)
+    assert port.damped(velocity) == pytest.approx([-0.5, 0, 0, 0, 0, 0]), 'translation only'
+    port.moved([1e-4, 0, 0, 0, 0, 0])
+    # The hand's 0.05 mJ went into the reserve first; past it, energy in is sent as credit.
+    assert port.reserve == pytest.approx(0.5 * 1e-4)
+    for k in range(1, 100):
+        port.step([0.0] * 6, velocity, k * MS)
+        port.damped(velocity)
+        port.moved([1e-4, 0, 0, 0, 0, 0])
+    assert port.reserve == MASTER_RESERVE_J
+    assert port.energy_in == pytest.approx(100 * 0.5 * 1e-4 - MASTER_RESERVE_J)
+    assert port.energy_out == 0.0
+
+
+def test_the_ports_damper_is_off_with_passivity_off_or_no_damping():
+    for port in (MasterPort(damping=5.0), MasterPort()):
+        port.enabled = port.damping == 0.0
+        port.step([0.0] * 6, [0.1] + [0.0] * 5, 0)
+        assert port.damped([0.1] + [0.0] * 5) == [0.0] * 6
+
+
+def test_force_reflection_adds_the_ports_damper_after_contact_damping():
+    port = MasterPort(damping=5.0)
+    port.credit(1.0)
+    reflection = ForceReflection(torque_limits=(100.0,) * 5, contact_damping=2.0, enabled=True)
+    reflection.hold(WrenchInput((3.0, 0, 4.0, 0, 0, 0), 'base', 0))
+    velocity = [0.1, 0, 0, 0, 0, 0]
+    reflection.compute(np.eye(3), np.eye(6), 0, cartesian_velocity=velocity, port=port)
+    port.moved([1e-4, 0, 0, 0, 0, 0])
+    out = reflection.compute(np.eye(3), np.eye(6), MS, cartesian_velocity=velocity, port=port)
+    # 3 N less contact damping (2 s/m * 5 N * 0.1 m/s) less the port's (5 N*s/m * 0.1 m/s).
+    assert out.actuator[0] == pytest.approx(3.0 - 1.0 - 0.5)
+    assert out.actuator[2] == pytest.approx(4.0)
+
+
 def test_slave_controller_dissipates_exactly_the_excess_and_drifts():
     port = SlavePort(drift_gain=0.0)
     port.reset([0.0, 0.0, 0.0])

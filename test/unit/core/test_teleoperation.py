@@ -69,7 +69,8 @@ class Session:
     ({'orientation': 'loose'}, 'orientation'), ({'mode': 'velocity'}, 'mode'),
     ({'workspace_min': (0.0, 0.0, 1.0), 'workspace_max': (1.0, 1.0, 1.0)}, 'workspace_min'),
     ({'sensor_rotation': (0.0, 0.0)}, 'sensor_rotation'),
-    ({'tool_com': (0.0, 0.1)}, 'tool_com'), ({'gravity': (0.0, 0.0, math.inf)}, 'gravity')])
+    ({'tool_com': (0.0, 0.1)}, 'tool_com'), ({'gravity': (0.0, 0.0, math.inf)}, 'gravity'),
+    ({'slave_port_force': 'measured'}, 'slave_port_force')])
 def test_bad_settings_are_refused_naming_the_setting(settings, fragment):
     with pytest.raises(ValueError, match=fragment):
         Teleoperation(Settings(**settings))
@@ -423,6 +424,33 @@ def test_the_slave_port_hands_the_environment_no_more_than_the_master_put_in():
     assert port.drift[2] == pytest.approx(-0.02 + 0.004)
 
 
+def test_the_slave_port_books_the_force_sent_in_the_masters_units():
+    # Scale 2 and force scale 0.5, a dead band of 1 N: of a 5 N contact the master gets
+    # 0.5 * 5 - 1 = 1.5 N, over half the arm's motion; the port books 1.5 N over 1 cm / 2.
+    booked = {}
+    for books in ('contact', 'sent'):
+        session = Session(passivity=True, scale=2.0, force_scale=0.5, force_deadband=1.0,
+                          slave_port_force=books).enabled()
+        session.bridge.master_energy(1.0)
+        session.feed(reading=(0.0, 0.0, 5.0, 0, 0, 0))
+        for step in range(1, 11):
+            command = session.follow((0.0, 0.0, -0.0005 * step))
+        np.testing.assert_allclose(command.position, ARM_HOME - (0.0, 0.0, 0.01), atol=1e-12)
+        booked[books] = session.bridge.port.energy_out
+    assert booked['contact'] == pytest.approx(5.0 * 0.01)
+    assert booked['sent'] == pytest.approx(1.5 * 0.01 / 2.0)
+
+
+def test_booking_the_force_sent_reflects_no_moment_the_masters_rotation_does_not_cause():
+    reading = (0.0, 0.0, 4.0, 0.0, 0.3, 0.0)
+    for orientation, books, moment in (('fixed', 'sent', 0.0), ('follow', 'sent', 0.3),
+                                       ('fixed', 'contact', 0.3)):
+        session = Session(orientation=orientation, slave_port_force=books).enabled()
+        session.follow((0.0, 0.0, 0.0), reading=reading)
+        np.testing.assert_allclose(session.bridge.master_wrench(session.now),
+                                   [0, 0, 4.0, 0, moment, 0])
+
+
 def test_a_stale_arm_pose_is_a_fault():
     session = Session(arm_timeout=0.05).enabled()
     bridge = session.bridge
@@ -544,7 +572,7 @@ NEW_VALUES = {
     'force_scale': 3.0, 'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1,
     'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0,
     'max_input_force': 500.0, 'max_input_moment': 50.0, 'max_input_position': 5.0,
-    'passivity': True, 'drift_gain': 5.0}
+    'passivity': True, 'drift_gain': 5.0, 'slave_port_force': 'sent'}
 PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
 MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
 
