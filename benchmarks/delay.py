@@ -51,6 +51,10 @@ def main(argv=None):
     parser.add_argument('--arm-set', nargs='+', default=[], metavar='NAME:=VALUE',
                         help="parameters of the arm's node, e.g. translational_stiffness:=5000 "
                         "(the bridge's arm_stiffness follows it)")
+    parser.add_argument('--bridge-set', nargs='+', default=[], metavar='NAME:=VALUE',
+                        help='parameters of the bridge, e.g. slave_port_force:=sent')
+    parser.add_argument('--driver-set', nargs='+', default=[], metavar='NAME:=VALUE',
+                        help='parameters of the driver, e.g. passivity_damping:=5.0')
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
     args = parser.parse_args(argv)
     modes = {'off': (False,), 'on': (True,), 'both': (False, True)}[args.passivity]
@@ -61,18 +65,22 @@ def main(argv=None):
         arm_parameters = [text.split(':=', 1) for text in args.arm_set]
         bridge_parameters = [('arm_stiffness', value) for name, value in arm_parameters
                              if name == 'translational_stiffness']
+        bridge_parameters += [text.split(':=', 1) for text in args.bridge_set]
+        driver_parameters = [text.split(':=', 1) for text in args.driver_set]
         for seed, (past, round_trip, loss, passivity) in enumerate(
                 (d, r, s, p) for d in args.past for r in args.round_trips for s in args.losses
                 for p in modes):
             row = {'past_mm': past, 'round_trip_ms': round_trip, 'loss_pct': 100.0 * loss,
                    'passivity': 'on' if passivity else 'off',
                    **session.run_row(prefix, round_trip, loss, passivity, seed, args.arm,
-                                     past / 1e3, arm_parameters, bridge_parameters)}
+                                     past / 1e3, arm_parameters, bridge_parameters,
+                                     driver_parameters)}
             rows.append(row)
             print(' | '.join(form.format(row[key]) for _, key, form in COLUMNS), flush=True)
     if args.json:
         args.json.write_text(json.dumps({
             'machine': platform.node(), 'arm': args.arm, 'arm_set': args.arm_set,
+            'bridge_set': args.bridge_set, 'driver_set': args.driver_set,
             'slave': session.SLAVE, 'bridge': session.BRIDGE,
             'wall_below_m': session.WALL_BELOW, 'hold_s': session.HOLD,
             'window_s': session.WINDOW, 'rows': rows}, indent=1))

@@ -177,12 +177,13 @@ ARMS = {'point-mass': point_mass_arm, 'mujoco': panda_arm}
 
 
 def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past=PAST,
-            arm_parameters=(), bridge_parameters=()):
+            arm_parameters=(), bridge_parameters=(), driver_parameters=()):
     """
     Run one session on two hosts; return its figures (NamespacesRefused if not allowed).
 
     `past`: m the operator's hand aims past the arm's surface; `arm_parameters`: (name, value)
-    given to the arm's node besides its own; `bridge_parameters`: likewise, the bridge's.
+    given to the arm's node besides its own; `bridge_parameters`, `driver_parameters`: likewise,
+    the bridge's and the driver's (after the arm's own settings for them).
     """
     arm = ARMS[arm]()
     simulator = SimulatedKraftMaster(arm=ARM, operator='hold', record=20000, transport='tcp')
@@ -212,7 +213,8 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past
             start(master_host, prefix, master_domain, 'kraft_master_node', [
                 ('port', port), ('arm', ARM), ('force_enabled_at_start', 'true'),
                 ('loop_rate_hz', 1000.0), ('publish_decimation', PUBLISH_DECIMATION),
-                ('passivity', on), ('max_wrench_age', MAX_WRENCH_AGE_S + one_way), *arm.driver])
+                ('passivity', on), ('max_wrench_age', MAX_WRENCH_AGE_S + one_way), *arm.driver,
+                *driver_parameters])
             if not direct:
                 start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
                     ('slave_domain_id', slave_domain), ('seed', seed),
