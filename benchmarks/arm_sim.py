@@ -26,8 +26,11 @@ Four parts, figures only (no asserts):
   swings PORT_SWING m about PORT_DEPTH m below the table top at 2, 5 and 10 Hz, for each
   translational stiffness; over PORT_CYCLES cycles, the energy the arm side hands back per
   cycle (mJ), the table's force on the hand (from the physics' contacts) times the commanded
-  motion (what the slave port books: it pairs the force with servo_cp's motion) and times the
-  hand's own motion (what the table really exchanged). Positive: energy out of the arm side.
+  motion (what the slave port books: it pairs the force with servo_cp's motion), times the
+  hand's own motion (what the table really exchanged), and the impedance's spring force
+  (stiffness times how far the hand is from servo_cp) times the commanded motion (the energy
+  servo_cp's motion puts into the arm, its spring included). Positive: energy out of the arm
+  side.
 - cost: each process's CPU over the chain part (from /proc), and the arm's real-time factor
   and step CPU from its diagnostics (one value a second: min, median).
 """
@@ -104,7 +107,12 @@ def step_costs(count=5000):
 
 
 def port_energy(stiffness, frequency):
-    """Return the energy (J per cycle) out of the arm side: by the port's books, at the hand."""
+    """
+    Return the energy (J per cycle) out of the arm side, three ways.
+
+    By the port's books, at the hand, and by the impedance's spring against the commanded
+    motion.
+    """
     arm = PandaArm(gains=Gains(translational_stiffness=stiffness))
     start, quaternion = arm.tool_position(), arm.tool_quaternion()
     middle = Table().height - PORT_DEPTH
@@ -114,7 +122,7 @@ def port_energy(stiffness, frequency):
         arm.command_pose(target, quaternion, arm.time)
         arm.step()
     began = arm.time
-    booked = exchanged = 0.0
+    booked = exchanged = spring = 0.0
     commanded, hand = target[2], arm.tool_position()[2]
     while (elapsed := arm.time - began) < (PORT_CYCLES + 1) / frequency:
         target[2] = middle + PORT_SWING * math.sin(2.0 * math.pi * frequency * elapsed)
@@ -124,20 +132,23 @@ def port_energy(stiffness, frequency):
         if elapsed >= 1.0 / frequency:  # the first cycle is the swing's start
             booked += force * (target[2] - commanded)
             exchanged += force * (now_at - hand)
+            spring += stiffness * (now_at - target[2]) * (target[2] - commanded)
         commanded, hand = target[2], now_at
-    return booked / PORT_CYCLES, exchanged / PORT_CYCLES
+    return booked / PORT_CYCLES, exchanged / PORT_CYCLES, spring / PORT_CYCLES
 
 
 def print_port_energies():
     """Print port_energy() for each stiffness and frequency."""
     print(f'the arm at the slave port: commanded hand {1e3 * PORT_DEPTH:g} mm into the table, '
           f'swinging +-{1e3 * PORT_SWING:g} mm; energy out of the arm side per cycle (mJ), '
-          "by the port's books (force x servo_cp motion) / at the hand (force x hand motion)")
+          "by the port's books (force x servo_cp motion) / at the hand (force x hand motion) / "
+          "the impedance's spring (stiffness x (hand - servo_cp) x servo_cp motion)")
     for stiffness in PORT_STIFFNESSES:
         cells = []
         for frequency in PORT_FREQUENCIES:
-            booked, exchanged = port_energy(stiffness, frequency)
-            cells.append(f'{frequency:g} Hz {1e3 * booked:+8.2f} / {1e3 * exchanged:+7.2f}')
+            booked, exchanged, spring = port_energy(stiffness, frequency)
+            cells.append(f'{frequency:g} Hz {1e3 * booked:+8.2f} / {1e3 * exchanged:+7.2f}'
+                         f' / {1e3 * spring:+7.2f}')
         print(f'  {stiffness:6.0f} N/m: ' + ' | '.join(cells))
 
 

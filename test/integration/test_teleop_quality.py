@@ -46,3 +46,16 @@ def test_at_250_ms_passivity_keeps_the_contact_that_plain_force_reflection_shake
     assert plain['master_pp'] > 0.02 and plain['energy_generated'] > 0.5
     assert passive['master_pp'] < 0.005
     assert passive['energy_generated'] <= 0.0
+
+
+def test_at_250_ms_the_credit_before_the_first_force_cannot_pay_for_following_the_master():
+    # doc/passivity.md: when the contact's first force reaches the master, the master is far
+    # past the table; following it would cost the arm more than the master's port has sent.
+    result = figures(Session(round_trip_ms=250.0, **SENT_BOOKS, **PUSH))
+    series = 1000.0 * 20000.0 / (1000.0 + 20000.0)
+    follow = 0.5 * series * result['first_force_past'] ** 2
+    assert result['first_force_past'] > 0.015
+    assert result['first_force_energy_in'] < 0.2 * follow
+    assert result['slave_dissipated'] > 0.4 * (follow - result['first_force_energy_in'])
+    assert result['drift'] > 0.01
+    assert result['energy_generated'] <= 0.0
