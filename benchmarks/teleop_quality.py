@@ -75,6 +75,8 @@ def main(argv=None):
                         'the force sent (SENT_BOOKS)')
     parser.add_argument('--runs', type=int, default=3,
                         help='seeds of the losses in each 0 ms cell')
+    parser.add_argument('--jitter', type=float, default=0.0,
+                        help='ms of delay each way drawn uniformly on top, order kept')
     parser.add_argument('--push', type=float, default=1.0,
                         help="s the operator's hand takes from above the table to past it")
     parser.add_argument('--passivity-damping', type=float,
@@ -103,7 +105,8 @@ def main(argv=None):
                         for seed in range(args.runs if round_trip == 0 else 1):
                             rows.append(row(Session(round_trip, loss, stiffness=stiffness,
                                                     past=past / 1e3, seed=seed,
-                                                    push=args.push, **settings[mode])))
+                                                    push=args.push, jitter_ms=args.jitter,
+                                                    **settings[mode])))
                             print(' | '.join(form.format(rows[-1][key])
                                              for _, key, form in COLUMNS), flush=True)
     if args.json:

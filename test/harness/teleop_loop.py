@@ -9,9 +9,9 @@ ForceReflection and MasterPort at 1 kHz; the bridge's Teleoperation (its motion,
 force path) on each message as it arrives and its tick at 500 Hz; the Panda (PandaArm, 1 ms
 steps) giving its pose and F/T reading at 500 Hz, as its node publishes them. Between the two
 sides each message waits exactly its one-way delay (half the round trip plus `latency_ms`, the
-hops' own time) and is lost with the given probability. The operator's hand pushes the master
-down through the table, holds, and lets go. What it shows is the physics of the loop, the same
-on a busy machine as on an idle one.
+hops' own time, plus a draw of `jitter_ms` if any) and is lost with the given probability. The
+operator's hand pushes the master down through the table, holds, and lets go. What it shows is
+the physics of the loop, the same on a busy machine as on an idle one.
 """
 import collections
 import math
@@ -59,6 +59,7 @@ class Session(NamedTuple):
     stiffness: float = 1000.0  # N/m: the Panda's translational stiffness
     past: float = 0.025  # m the operator's hand aims past the table top
     latency_ms: float = 1.0  # ms each way beyond the emulated delay: DDS and the ticks
+    jitter_ms: float = 0.0  # ms each way drawn uniformly on top, order kept
     contact_damping: float = MUJOCO_DRIVER['contact_damping']  # s/m, the driver's
     passivity_damping: float = DRIVER_PARAMETERS['passivity_damping'].default  # N*s/m
     slave_port_force: str = Settings().slave_port_force  # what the bridge's slave port books
@@ -69,15 +70,21 @@ class Session(NamedTuple):
 
 
 class _Link:
-    """One direction of the network: each message waits its delay; some are lost."""
+    """One direction of the network: each message waits its delay and jitter; some are lost."""
 
-    def __init__(self, delay, loss, rng):
-        self.delay, self.loss, self.rng = delay, loss, rng
+    def __init__(self, delay, loss, rng, jitter=0.0):
+        self.delay, self.loss, self.rng, self.jitter = delay, loss, rng, jitter
         self.queue = collections.deque()
 
     def send(self, now, message):
         if self.rng.random() >= self.loss:
-            self.queue.append((now + self.delay, message))
+            due = now + self.delay
+            if self.jitter:
+                # As the link emulator's jitter: a draw that would overtake waits.
+                due += self.rng.random() * self.jitter
+                if self.queue:
+                    due = max(due, self.queue[-1][0])
+            self.queue.append((due, message))
 
     def due(self, now):
         while self.queue and self.queue[0][0] <= now + 1e-9:
@@ -190,7 +197,9 @@ def run(session=Session()):
     bridge = Teleoperation(settings)
     master = _Master(session, home_theta)
     one_way = (session.round_trip_ms / 2.0 + session.latency_ms) / 1e3
-    to_arm, to_master = (_Link(one_way, session.loss, rng), _Link(one_way, session.loss, rng))
+    jitter = session.jitter_ms / 1e3
+    to_arm, to_master = (_Link(one_way, session.loss, rng, jitter),
+                         _Link(one_way, session.loss, rng, jitter))
     top = joints_to_actuators(home_theta)
     pushed = _actuator_target(home_theta, start[2] - table.height + session.past)
     phases = ((top, top, REST), (top, pushed, session.push), (pushed, pushed, session.hold),
