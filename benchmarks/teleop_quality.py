@@ -77,6 +77,8 @@ def main(argv=None):
                         help='seeds of the losses in each 0 ms cell')
     parser.add_argument('--jitter', type=float, default=0.0,
                         help='ms of delay each way drawn uniformly on top, order kept')
+    parser.add_argument('--pot-counts', action='store_true',
+                        help='the driver reads the angles through whole pot counts, as live')
     parser.add_argument('--push', type=float, default=1.0,
                         help="s the operator's hand takes from above the table to past it")
     parser.add_argument('--passivity-damping', type=float,
@@ -106,6 +108,7 @@ def main(argv=None):
                             rows.append(row(Session(round_trip, loss, stiffness=stiffness,
                                                     past=past / 1e3, seed=seed,
                                                     push=args.push, jitter_ms=args.jitter,
+                                                    pot_counts=args.pot_counts,
                                                     **settings[mode])))
                             print(' | '.join(form.format(rows[-1][key])
                                              for _, key, form in COLUMNS), flush=True)

@@ -19,6 +19,7 @@ import random
 from typing import NamedTuple
 
 from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.teleoperation import Teleoperation
@@ -60,6 +61,7 @@ class Session(NamedTuple):
     past: float = 0.025  # m the operator's hand aims past the table top
     latency_ms: float = 1.0  # ms each way beyond the emulated delay: DDS and the ticks
     jitter_ms: float = 0.0  # ms each way drawn uniformly on top, order kept
+    pot_counts: bool = False  # the driver reads the angles through whole pot counts, as live
     contact_damping: float = MUJOCO_DRIVER['contact_damping']  # s/m, the driver's
     passivity_damping: float = DRIVER_PARAMETERS['passivity_damping'].default  # N*s/m
     slave_port_force: str = Settings().slave_port_force  # what the bridge's slave port books
@@ -111,6 +113,7 @@ class _Master:
         self.velocity_filter = VelocityFilter(50.0)
         self.port = MasterPort(session.passivity_damping)
         self.port.enabled = session.passivity
+        self.calibration = ArmCalibration.nominal(ARM) if session.pot_counts else None
         self.previous = None
         self.felt = 0.0
         self.first_force = None  # (s, J): when the contact's force first came, energy in then
@@ -120,6 +123,9 @@ class _Master:
         now_ns = round(t * 1e9)
         port = self.port
         theta = self.model.joint_angle_list()
+        if self.calibration is not None:
+            theta = self.calibration.frame_to_joints(
+                [round(count) for count in self.calibration.joints_to_frame(theta)])
         pose, entries = kinematics.forward_and_jacobian_entries(theta, ARM)
         jacobian = [entries[row:row + 6] for row in range(0, 36, 6)]
         velocity = self.velocity_filter.update(theta, now_ns)

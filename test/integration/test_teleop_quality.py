@@ -18,6 +18,17 @@ def test_at_0_ms_plain_force_reflection_holds_still_and_is_felt(stiffness):
 
 
 @pytest.mark.parametrize('stiffness', [1000.0, 5000.0])
+def test_at_0_ms_plain_force_reflection_through_whole_pot_counts_holds_still_and_is_felt(
+        stiffness):
+    # As the driver reads the device: the wrist moves in steps of one count (0.16 mm).
+    result = figures(Session(stiffness=stiffness, pot_counts=True, **PUSH))
+    assert result['master_pp'] <= 0.0005
+    assert result['felt_ratio'] >= 0.85
+    assert result['felt_stiffness'] >= 0.85 * stiffness * 20000.0 / (stiffness + 20000.0)
+    assert result['free_space_drag'] <= 0.5
+
+
+@pytest.mark.parametrize('stiffness', [1000.0, 5000.0])
 def test_at_0_ms_passivity_booking_the_force_sent_holds_still_and_is_felt(stiffness):
     # doc/passivity.md: the slave port books the force sent, the master port a light damper.
     result = figures(Session(stiffness=stiffness, **SENT_BOOKS, **PUSH))
