@@ -246,7 +246,8 @@ class ForceReflection:
                 pose: NDArray[np.float64] | None = None,
                 centre: NDArray[np.float64] | None = None,
                 cartesian_velocity: Vector | None = None,
-                port: Port | None = None) -> TorqueOutput:
+                port: Port | None = None,
+                model: tuple[Sequence[float], float] | None = None) -> TorqueOutput:
         """
         Return the TorqueOutput for this cycle.
 
@@ -258,55 +259,35 @@ class ForceReflection:
         port (passivity.MasterPort), with cartesian_velocity, limits the reflected wrench to
         the energy the far end has sent, before the centre terms and the torque limits, and
         adds its damper (MasterPort.damped), after contact_damping.
+        model: the contact model's force (N, 3, base frame; core/contact_rendering.py) and its
+        share of the force (0..1, core/force_mode.py): the wrench is the direct one times
+        (1 - share) plus force_scale times the model's times share, then the centre terms.
         """
         hot = self._hot
         settings = hot.settings
-        latest = self._latest
         if not settings.enabled:
             return self._idle(DISABLED, port, now_ns)
-        if latest is None:
-            return self._idle(NO_WRENCH, port, now_ns)
-        if isinstance(latest, Rejection):
-            return self._idle(REJECTED, port, now_ns)
-        # A large negative age (receipt stamped in the future) is as doubtful as a large one.
-        if abs(now_ns - latest.received_ns) > hot.timeout_ns:
-            if latest is not self._tripped:
-                self._tripped = latest
-                self._watchdog_trips += 1
-            return self._idle(STALE, port, now_ns)
-        if latest.expires_ns is not None and now_ns > latest.expires_ns:
-            if latest is not self._expired:
-                self._expired = latest
-                self._age_expiries += 1
-            return self._idle(STALE, port, now_ns)
-
-        scale = settings.force_scale
-        fx, fy, fz, mx, my, mz = latest.wrench
-        wrench: Sequence[float]
-        if latest.frame == WRIST_FRAME:
-            rows = _as_lists(rotation)
-            wrench = _rotate(rows, fx, fy, fz) + _rotate(rows, mx, my, mz)
-        else:
-            wrench = [fx, fy, fz, mx, my, mz]
-        wrench = [scale * x for x in wrench]
-        if port is not None and cartesian_velocity is not None:
-            wrench = port.step(wrench, _as_lists(cartesian_velocity), now_ns)
+        share = 0.0 if model is None else model[1]
+        state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, share)
+        if share > 0.0:
+            assert model is not None
+            scaled = share * settings.force_scale
+            direct = wrench if wrench is not None else (0.0,) * 6
+            wrench = [(1.0 - share) * w for w in direct]
+            for axis in range(3):
+                wrench[axis] += scaled * model[0][axis]
+            state = ACTIVE
+        if wrench is None:
+            return _ZERO_OUTPUTS[state]
+        latest = self._latest
+        tag = latest.tag if isinstance(latest, WrenchInput) else None
         if hot.stiffness is not None and pose is not None and centre is not None:
             dp, dw = kinematics.pose_difference(pose, centre)
             wrench = _minus_product(wrench, hot.stiffness, dp.tolist() + dw.tolist())
         if hot.damping is not None and cartesian_velocity is not None:
             wrench = _minus_product(wrench, hot.damping, _as_lists(cartesian_velocity))
-        if settings.contact_damping and cartesian_velocity is not None:
-            # A damper as strong as the force felt: none in free space, in contact it takes
-            # out the energy that the force's lag behind the wrist would put in.
-            fx, fy, fz = wrench[:3]
-            gain = settings.contact_damping * math.sqrt(fx * fx + fy * fy + fz * fz)
-            vx, vy, vz = _as_lists(cartesian_velocity)[:3]
-            wrench = [fx - gain * vx, fy - gain * vy, fz - gain * vz, *wrench[3:]]
-        if port is not None and cartesian_velocity is not None:
-            damper = port.damped(_as_lists(cartesian_velocity))
-            wrench = [w + d for w, d in zip(wrench, damper)]
-
+        if state == ACTIVE and share < 1.0 and cartesian_velocity is not None:
+            wrench = self._damped(wrench, _as_lists(cartesian_velocity), port, 1.0 - share)
         # Plain floats: a few tolist() calls beat a chain of tiny numpy operations here.
         columns = list(zip(*_as_lists(jacobian)))
         torques = [sum(map(operator.mul, column, wrench)) for column in columns[:DRIVEN_AXES]]
@@ -333,7 +314,66 @@ class ForceReflection:
         t1, t2, t3, t4, t5 = torques
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
         joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)
-        return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, latest.tag)
+        return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, tag)
+
+    def _direct(self, rotation: Matrix, now_ns: int, cartesian_velocity: Vector | None,
+                port: Port | None, share: float) -> tuple[str, list[float] | None]:
+        """
+        Return the state and the wrench reflected directly (None: zero, the state says why).
+
+        The wrench admitted, scaled and through the port. While the model takes all of the
+        force (share 1) the port idles.
+        """
+        hot = self._hot
+        settings = hot.settings
+        latest = self._latest
+        if latest is None or share >= 1.0:
+            self._idle(NO_WRENCH, port, now_ns)
+            return NO_WRENCH, None
+        if isinstance(latest, Rejection):
+            self._idle(REJECTED, port, now_ns)
+            return REJECTED, None
+        # A large negative age (receipt stamped in the future) is as doubtful as a large one.
+        if abs(now_ns - latest.received_ns) > hot.timeout_ns:
+            if latest is not self._tripped:
+                self._tripped = latest
+                self._watchdog_trips += 1
+            self._idle(STALE, port, now_ns)
+            return STALE, None
+        if latest.expires_ns is not None and now_ns > latest.expires_ns:
+            if latest is not self._expired:
+                self._expired = latest
+                self._age_expiries += 1
+            self._idle(STALE, port, now_ns)
+            return STALE, None
+        scale = settings.force_scale
+        fx, fy, fz, mx, my, mz = latest.wrench
+        wrench: Sequence[float]
+        if latest.frame == WRIST_FRAME:
+            rows = _as_lists(rotation)
+            wrench = _rotate(rows, fx, fy, fz) + _rotate(rows, mx, my, mz)
+        else:
+            wrench = [fx, fy, fz, mx, my, mz]
+        wrench = [scale * x for x in wrench]
+        if port is not None and cartesian_velocity is not None:
+            wrench = port.step(wrench, _as_lists(cartesian_velocity), now_ns)
+        return ACTIVE, list(wrench)
+
+    def _damped(self, wrench: Sequence[float], velocity: Sequence[float], port: Port | None,
+                share: float) -> list[float]:
+        """Return the wrench with the contact damper and the port's, times the direct share."""
+        if self._hot.settings.contact_damping:
+            # A damper as strong as the force felt: none in free space, in contact it takes
+            # out the energy that the force's lag behind the wrist would put in.
+            fx, fy, fz = wrench[:3]
+            gain = share * self._hot.settings.contact_damping * math.sqrt(
+                fx * fx + fy * fy + fz * fz)
+            vx, vy, vz = velocity[:3]
+            wrench = [fx - gain * vx, fy - gain * vy, fz - gain * vz, *wrench[3:]]
+        if port is not None:
+            damper = port.damped(velocity)
+            wrench = [w + share * d for w, d in zip(wrench, damper)]
+        return list(wrench)
 
 
 def _as_lists(values: NDArray[np.float64] | _Lists) -> _Lists:

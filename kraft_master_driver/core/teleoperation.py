@@ -29,8 +29,10 @@ from the arm's measured tool frame). Times are monotonic seconds given by the ca
 from enum import StrEnum
 from typing import Callable, NamedTuple, Optional, Sequence
 
+from kraft_master_driver.core.contact_model import ContactModel
 from kraft_master_driver.core.passivity import SlavePort
 from kraft_master_driver.core.rotations import norm, rotation_parameter
+from kraft_master_driver.core.teleoperation_contact import ContactSharing, Registration
 from kraft_master_driver.core.teleoperation_force import ForcePath
 from kraft_master_driver.core.teleoperation_inputs import (
     checked_pose, checked_reading, Floats, tracking_error)
@@ -72,6 +74,7 @@ class Outputs(NamedTuple):
     slave_energy: Optional[tuple[float, float, float]] = None  # in, out, dissipated (J)
     state: Optional[StateChange] = None  # the operating state, when it changed
     refusal: Optional[str] = None  # why the input was refused or is a FAULT, in one line
+    contact_model: Optional[ContactModel] = None  # for the master (its frame and units)
 
 
 class Answer(NamedTuple):
@@ -103,6 +106,7 @@ class Teleoperation:
         self.port.enabled = settings.passivity
         self.motion = Motion(settings, checked_settings.box, self.port)
         self.force = ForcePath(settings, checked_settings.sensor_rotation)
+        self.contact = ContactSharing(settings)
         self._ramp: Optional[WrenchRamp] = None  # the force path before a change, while ramping
         self._sent_force = np.zeros(3)  # N, master base frame: the last wrench's force sent
         self.state = OperatingState.DISABLED
@@ -128,13 +132,14 @@ class Teleoperation:
     def _outputs(self, command: Optional[tuple[float, ...]] = None,
                  wrench: Optional[Array] = None,
                  slave_energy: Optional[tuple[float, float, float]] = None,
-                 refusal: Optional[str] = None) -> Outputs:
+                 refusal: Optional[str] = None,
+                 contact_model: Optional[ContactModel] = None) -> Outputs:
         """Return what to send, with the state if it changed since it was last returned."""
         state = None
         if (self.state, self.reason) != self._reported:
             self._reported = (self.state, self.reason)
             state = StateChange(self.state, self.reason)
-        return Outputs(command, wrench, slave_energy, state, refusal)
+        return Outputs(command, wrench, slave_energy, state, refusal, contact_model)
 
     def _answer(self, refusal: Optional[str]) -> Answer:
         return Answer(refusal, self.describe(), self._outputs())
@@ -236,7 +241,7 @@ class Teleoperation:
             self.force = self.force.retuned(settings, checked_settings.sensor_rotation)
         if 'base_rotation' in changes:
             self.base_rotation = checked_settings.base_rotation
-        self.settings = self.motion.settings = settings
+        self.settings = self.motion.settings = self.contact.settings = settings
         self.motion.box = checked_settings.box
         self.port.drift_gain = settings.drift_gain
         self.port.enabled = settings.passivity
@@ -276,11 +281,18 @@ class Teleoperation:
         self._check(now)
         port = self.port
         energy = (port.energy_in, port.energy_out, port.dissipated)
+        registration = None
+        if self.following and self.settings.force_feedback:
+            assert self.motion.registration is not None
+            registration = Registration(*self.motion.registration, self.base_rotation)
+        model = self.contact.to_send(registration, now)
         if not self.following:
-            return self._outputs(self._command(), self.master_wrench(now), energy)
+            return self._outputs(self._command(), self.master_wrench(now), energy,
+                                 contact_model=model)
         if not self.settings.force_feedback:
-            return self._outputs(wrench=self.master_wrench(now), slave_energy=energy)
-        return self._outputs(slave_energy=energy)
+            return self._outputs(wrench=self.master_wrench(now), slave_energy=energy,
+                                 contact_model=model)
+        return self._outputs(slave_energy=energy, contact_model=model)
 
     def _check(self, now: float) -> None:
         """Apply the timeouts: a stale master holds, a stale arm or F/T is a FAULT."""
@@ -341,6 +353,12 @@ class Teleoperation:
             self._fault(reading, now)
             return self._outputs(wrench=self.master_wrench(now), refusal=reading)
         self.reading = (reading, now)
+        arm = self.arm
+        if arm is not None and now - arm[1] <= self.settings.arm_timeout:
+            command = self.motion.command if self.following else None
+            self.contact.reading(arm[0].position, self.contact_wrench()[:3],
+                                 None if command is None else command.position, now)
+            self.motion.floor = self.contact.floor
         return self._outputs(wrench=self.master_wrench(now))
 
     def master_energy(self, energy_in: float) -> None:

@@ -39,6 +39,8 @@ class Motion:
         self.registration: Optional[tuple[Pose, Pose]] = None  # (master, arm) poses
         self.command: Optional[Pose] = None  # the last pose commanded while following
         self._target: Optional[Pose] = None  # the speed-limited target, before the port
+        # Where the arm yields: a normal (arm base) and the least n . x of the target.
+        self.floor: Optional[tuple[Array, float]] = None
 
     def register(self, master: Pose, held: Pose) -> None:
         """Take the offset anew: the master's pose `master` maps to the arm's `held`."""
@@ -64,6 +66,11 @@ class Motion:
         """Move the target toward the mapped master pose within the speed limits, `dt` s on."""
         assert self._target is not None
         wanted = self._mapped(pose, base_rotation)
+        if self.floor is not None:
+            normal, least = self.floor
+            below = least - float(normal @ wanted.position)
+            if below > 0.0:
+                wanted = Pose(wanted.position + below * normal, wanted.rotation)
         settings, target = self.settings, self._target
         step = clamp_norm(wanted.position - target.position, settings.max_linear_speed * dt)
         turn = clamp_norm(rotation_vector(wanted.rotation @ target.rotation.T),

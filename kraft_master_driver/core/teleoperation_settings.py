@@ -55,6 +55,7 @@ class Settings(NamedTuple):
     passivity: bool = False
     drift_gain: float = 2.0
     slave_port_force: str = 'contact'  # one of SLAVE_PORT_FORCES
+    model_tolerance: float = 3.0  # N the contact force may exceed the contact model's
 
 
 class Checked(NamedTuple):

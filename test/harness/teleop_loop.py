@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.contact_rendering import ContactRenderer, RendererSettings
+from kraft_master_driver.core.force_mode import ForceMode, ModeSelector, ModeSettings
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.teleoperation import Teleoperation
@@ -69,6 +71,8 @@ class Session(NamedTuple):
     seed: int = 0  # of the losses
     hold: float = HOLD  # s
     push: float = PUSH  # s the hand takes from above the table to `past` (up to 97 mm/s in 1 s)
+    force_mode: str = 'direct'  # the driver's force_mode: direct, model or auto
+    table_stiffness: float = Table().stiffness  # N/m
 
 
 class _Link:
@@ -113,6 +117,9 @@ class _Master:
         self.velocity_filter = VelocityFilter(50.0)
         self.port = MasterPort(session.passivity_damping)
         self.port.enabled = session.passivity
+        self.renderer = ContactRenderer(RendererSettings(rate_hz=1.0 / DT))
+        self.selector = ModeSelector(ModeSettings(ForceMode(session.force_mode)))
+        self.share = 0.0  # the model's share of the force this cycle
         self.calibration = ArmCalibration.nominal(ARM) if session.pot_counts else None
         self.previous = None
         self.felt = 0.0
@@ -134,15 +141,23 @@ class _Master:
             step = [a - b for a, b in zip(theta, self.previous)]
             port.moved([sum(a * b for a, b in zip(row, step)) for row in jacobian])
         self.previous = theta
-        to_arm.send(t, ((pose[3], pose[7], pose[11]), port.energy_in))
-        for wrench, energy in to_master.due(t):
+        position = (pose[3], pose[7], pose[11])
+        to_arm.send(t, (position, port.energy_in))
+        for wrench, energy, model, sent in to_master.due(t):
+            self.selector.delay(t - sent, now_ns)
             if wrench is not None:
                 self.reflection.hold(self.admission.admit(wrench, BASE_FRAME, 0, now_ns, 0))
                 if self.first_force is None and math.hypot(*wrench[:3]) >= FIRST_FORCE:
                     self.first_force = (t, port.energy_in)
+            if model is not None:
+                self.renderer.take(model, now_ns)
             port.credit(energy)
+        self.share = self.selector.weight(now_ns)
+        model_force = self.renderer.force(position, twist[:3], now_ns)
         out = self.reflection.compute((pose[0:3], pose[4:7], pose[8:11]), jacobian, now_ns,
-                                      cartesian_velocity=twist, port=port)
+                                      cartesian_velocity=twist, port=port,
+                                      model=(model_force, self.share))
+        self.renderer.applied(self.share if out.state == 'active' else 0.0)
         self.felt = _felt(theta, out.actuator)
         self.model.motor[:5] = list(out.actuator)
         self.model.step(DT, hand)
@@ -170,7 +185,7 @@ def _arm_millisecond(k, t, arm, bridge, to_arm, to_master):
         bridge.arm_pose(settings.arm_frame, arm.tool_position(), arm.tool_quaternion(), t)
         out = bridge.ft_reading(settings.ft_frame, arm.wrench(), t)
         if out.wrench is not None:
-            to_master.send(t, (tuple(out.wrench), bridge.port.energy_in))
+            to_master.send(t, (tuple(out.wrench), bridge.port.energy_in, None, t))
         if bridge.master is not None and not bridge.following:
             bridge.enable(t)  # at the master's first pose, where the demo enables it
     if k % TICK_PERIOD == 1:
@@ -178,7 +193,7 @@ def _arm_millisecond(k, t, arm, bridge, to_arm, to_master):
         if out.command is not None:
             arm.command_pose(out.command[:3], out.command[3:], t)
         to_master.send(t, (None if out.wrench is None else tuple(out.wrench),
-                           bridge.port.energy_in))
+                           bridge.port.energy_in, out.contact_model, t))
 
 
 def run(session=Session()):
@@ -188,12 +203,26 @@ def run(session=Session()):
     The log has one row per millisecond: time (s); how far past the table top (m, > 0 below
     it) the master's wrist is, mapped onto the arm, the arm's command and the hand's tip; the
     table's force on the hand along the normal (N); the force felt along the normal (N, from
-    the torques sent).
+    the torques sent); the model's share of the force.
+    """
+    depth = session.past
+    phases = ((None, None, REST, 0.0), (None, depth, session.push, 0.0),
+              (depth, depth, session.hold, 0.0), (depth, None, RELEASE, 0.0))
+    return _simulate(session, phases)
+
+
+def _simulate(session, phases):
+    """
+    Run the hand through `phases`; return (log, master, slave port).
+
+    Each phase: where the hand aims at its start and at its end (m past the table top as
+    built, None: the top of the stroke, home), its seconds, and how far the table's rest is
+    moved down from then on (m).
     """
     rng = random.Random(session.seed)
     home_theta = Workspace().home()
     home = kinematics.forward(home_theta, ARM)[:3, 3]
-    table = Table()
+    table = Table(stiffness=session.table_stiffness)
     arm = PandaArm(table=table, gains=Gains(translational_stiffness=session.stiffness))
     start = arm.tool_position()
     settings = Settings(**{**BRIDGE_SETTINGS, 'max_force': MAX_FORCE,
@@ -206,13 +235,20 @@ def run(session=Session()):
     jitter = session.jitter_ms / 1e3
     to_arm, to_master = (_Link(one_way, session.loss, rng, jitter),
                          _Link(one_way, session.loss, rng, jitter))
-    top = joints_to_actuators(home_theta)
-    pushed = _actuator_target(home_theta, start[2] - table.height + session.past)
-    phases = ((top, top, REST), (top, pushed, session.push), (pushed, pushed, session.hold),
-              (pushed, top, RELEASE))
+    targets = {}
+
+    def aim(depth):
+        if depth not in targets:
+            targets[depth] = (joints_to_actuators(home_theta) if depth is None else
+                              _actuator_target(home_theta, start[2] - table.height + depth))
+        return targets[depth]
+
     log = []
     k = 0
-    for begin, end, seconds in phases:
+    for begin_depth, end_depth, seconds, drop in phases:
+        arm.move_table(drop)
+        begin, end = aim(begin_depth), aim(end_depth)
+        top = table.height - drop
         steps = round(seconds / DT)
         for step in range(steps):
             t = k * DT
@@ -221,9 +257,9 @@ def run(session=Session()):
             _arm_millisecond(k, t, arm, bridge, to_arm, to_master)
             command = bridge.motion.command
             command_z = start[2] if command is None else command.position[2]
-            log.append((t, table.height - (start[2] + wrist[2] - home[2]),
-                        table.height - command_z, table.height - arm.tool_position()[2],
-                        arm.table_contact_force() @ NORMAL, master.felt))
+            log.append((t, top - (start[2] + wrist[2] - home[2]), top - command_z,
+                        top - arm.tool_position()[2], arm.table_contact_force() @ NORMAL,
+                        master.felt, master.share))
             k += 1
     return np.array(log), master, bridge.port
 
@@ -268,4 +304,77 @@ def figures(session=Session()):
         'slave_dissipated': slave_port.dissipated,
         'first_force_past': first_past,
         'first_force_energy_in': first_energy,
+    }
+
+
+class Tapping(NamedTuple):
+    """Touches of the table: each aims `past` m past its top, then `back` m back up."""
+
+    touches: int = 5
+    past: float = 0.015
+    back: float = 0.020
+    down: float = 0.5  # s from above the table to past it
+    hold: float = 2.0  # s
+    up: float = 0.5  # s
+    moved_before: int = 0  # the table moves before this touch (1-based; 0: never)
+    drop: float = 0.010  # m it moves down then
+
+
+def tap(session=Session(), tapping=Tapping()):
+    """
+    Run the touches; return (log, master, touches), touches a list of (start, end) log rows.
+
+    The log's rows are run()'s, past the table where it stands at the time.
+    """
+    phases, bounds, drop = [(None, None, REST, 0.0)], [], 0.0
+    above = tapping.past - tapping.back
+    for touch in range(1, tapping.touches + 1):
+        if touch == tapping.moved_before:
+            drop = tapping.drop
+        start = None if touch == 1 else above + drop
+        first = sum(round(phase[2] / DT) for phase in phases)
+        phases += [(start, tapping.past + drop, tapping.down, drop),
+                   (tapping.past + drop, tapping.past + drop, tapping.hold, drop),
+                   (tapping.past + drop, above + drop, tapping.up, drop)]
+        bounds.append((first, first + round((tapping.down + tapping.hold + tapping.up) / DT)))
+    log, master, _ = _simulate(session, phases)
+    return log, master, bounds
+
+
+def tapping_figures(session=Session(), tapping=Tapping(), window=1.0):
+    """
+    Return the figures of each touch (a list of dicts, SI units) and of the run (a dict).
+
+    Per touch, over the last `window` s of its hold: the master's mean past the table and its
+    peak-to-peak, the table's force and the force felt (means), the stiffness felt (felt over
+    past); over the touch: the largest step of the force felt from one millisecond to the next,
+    and the largest force felt while the master and the hand's tip are both above the table
+    (drag). The run: the stiffness possible (the arm's in series with the table's, clipped to
+    the master's renderable wall), and when the arm and then the master first felt 1 N.
+    """
+    log, master, bounds = tap(session, tapping)
+    touches = []
+    window_rows = round(window / DT)
+    hold_end = round((tapping.down + tapping.hold) / DT)
+    for first, last in bounds:
+        rows = log[first:last]
+        hold = rows[hold_end - window_rows:hold_end]
+        free = (rows[:, 1] < -FREE_SPACE) & (rows[:, 3] < -FREE_SPACE)
+        past, felt = hold[:, 1].mean(), hold[:, 5].mean()
+        touches.append({
+            'master_past': float(past), 'master_pp': float(np.ptp(hold[:, 1])),
+            'table_force': float(hold[:, 4].mean()), 'felt_force': float(felt),
+            'felt_stiffness': float(felt / past) if past > 0.0 else math.nan,
+            'force_step': float(np.abs(np.diff(rows[:, 5])).max()),
+            'drag': float(np.abs(rows[free, 5]).max()) if free.any() else math.nan})
+    series = session.stiffness * session.table_stiffness / (
+        session.stiffness + session.table_stiffness)
+    arm_felt = np.flatnonzero(log[:, 4] >= FIRST_FORCE)
+    master_felt = np.flatnonzero(log[:, 5] >= FIRST_FORCE)
+    return touches, {
+        'possible_stiffness': min(series, master.renderer.max_stiffness),
+        'arm_first_force': float(log[arm_felt[0], 0]) if arm_felt.size else math.nan,
+        'master_first_force': float(log[master_felt[0], 0]) if master_felt.size else math.nan,
+        'wall_balance': master.renderer.balance,
+        'max_table_force': float(log[:, 4].max()),
     }

@@ -1,7 +1,8 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """A short contact on the MuJoCo Panda in simulated time (harness/teleop_loop.py), no processes."""
-from harness.teleop_loop import figures, SENT_BOOKS, Session
+from harness.teleop_loop import (
+    figures, MAX_FORCE, SENT_BOOKS, Session, Tapping, tapping_figures)
 import pytest
 
 pytestmark = pytest.mark.slow
@@ -70,3 +71,19 @@ def test_at_250_ms_the_credit_before_the_first_force_cannot_pay_for_following_th
     assert result['slave_dissipated'] > 0.4 * (follow - result['first_force_energy_in'])
     assert result['drift'] > 0.01
     assert result['energy_generated'] <= 0.0
+
+
+def test_at_500_ms_the_contact_model_renders_the_second_touch_still_stiff_and_without_a_step():
+    # doc/force-feedback.md: the arm's side estimates the table, the master renders it.
+    session = Session(round_trip_ms=500.0, loss=0.01, jitter_ms=5.0, pot_counts=True,
+                      force_mode='model', table_stiffness=1000.0)
+    touches, run = tapping_figures(session, Tapping(touches=2))
+    second = touches[1]
+    possible = run['possible_stiffness']
+    assert abs(second['master_past'] - second['table_force'] / possible) <= 0.001
+    assert second['master_pp'] <= 0.0005
+    assert second['felt_stiffness'] >= 0.8 * possible
+    assert second['force_step'] <= 1.0
+    assert run['max_table_force'] < MAX_FORCE
+    assert run['master_first_force'] - run['arm_first_force'] <= 0.5 + 0.05
+    assert run['wall_balance'] >= 0.0

@@ -450,7 +450,15 @@ class PandaArm:
 
     def table_deflection(self):
         """Return how far the table top is pushed down from its rest (m)."""
-        return -float(self.data.qpos[self.table_spring])
+        return -float(self.data.qpos[self.table_spring]) + self.table_drop()
+
+    def table_drop(self):
+        """Return how far the table's rest was moved down by move_table (m)."""
+        return -float(self.model.qpos_spring[self.table_spring])
+
+    def move_table(self, drop):
+        """Move the table top's rest `drop` m down (up if negative) from where it was built."""
+        self.model.qpos_spring[self.table_spring] = -float(drop)
 
     def table_contact_force(self):
         """Return the table's force on the tool (N, arm base frame), from the contacts."""

@@ -572,7 +572,8 @@ NEW_VALUES = {
     'force_scale': 3.0, 'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1,
     'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0,
     'max_input_force': 500.0, 'max_input_moment': 50.0, 'max_input_position': 5.0,
-    'passivity': True, 'drift_gain': 5.0, 'slave_port_force': 'sent'}
+    'passivity': True, 'drift_gain': 5.0, 'slave_port_force': 'sent',
+    'model_tolerance': 5.0}
 PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
 MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
 

@@ -1,0 +1,76 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+Which force the master renders, no ROS: the arm's wrench (direct) or the contact model.
+
+force_mode 'direct' reflects the wrench that crossed the delay (J^T F, with contact damping and
+passivity as set), 'model' renders the contact model locally (core/contact_rendering.py), and
+'auto' chooses by the measured round trip, with hysteresis: the model above
+`model_above` s, direct again below `direct_below` s. The round trip is twice the one-way delay
+of the arm's messages (their stamps against the receipt; the clocks of the two sides must
+agree, as for max_wrench_age), held at its peak and decaying over `ROUND_TRIP_MEMORY` s, so one
+fast message does not switch back. A switch blends the two forces over `switch_time` s: no
+step at the hand.
+"""
+from enum import StrEnum
+import math
+from typing import NamedTuple
+
+
+class ForceMode(StrEnum):
+    """The force_mode parameter's values."""
+
+    AUTO = 'auto'
+    DIRECT = 'direct'
+    MODEL = 'model'
+
+
+ROUND_TRIP_MEMORY = 2.0  # s
+
+
+class ModeSettings(NamedTuple):
+    """The choice's thresholds (s)."""
+
+    mode: ForceMode = ForceMode.AUTO
+    model_above: float = 0.05
+    direct_below: float = 0.03
+    switch_time: float = 0.5
+
+
+class ModeSelector:
+    """The share of the model in the force (0: direct, 1: model), from the measured delay."""
+
+    def __init__(self, settings: ModeSettings = ModeSettings()) -> None:
+        """Start direct, unless force_mode is 'model'."""
+        if not 0.0 <= settings.direct_below <= settings.model_above:
+            raise ValueError(f'force_mode: direct_below {settings.direct_below:g} s must be '
+                             f'within 0 .. model_above {settings.model_above:g} s')
+        self.settings = settings
+        self.round_trip = 0.0  # s, the estimate
+        self._round_trip_at = 0
+        self.model_chosen = settings.mode is ForceMode.MODEL
+        self._weight = 1.0 if self.model_chosen else 0.0
+        self._weight_at = 0
+
+    def delay(self, one_way: float, now_ns: int) -> None:
+        """Note the one-way delay (s) of a message from the arm's side, received at `now_ns`."""
+        elapsed = max(0, now_ns - self._round_trip_at) / 1e9
+        decayed = self.round_trip * math.exp(-elapsed / ROUND_TRIP_MEMORY)
+        self.round_trip, self._round_trip_at = max(2.0 * one_way, decayed), now_ns
+        settings = self.settings
+        if settings.mode is not ForceMode.AUTO:
+            return
+        if not self.model_chosen and self.round_trip > settings.model_above:
+            self.model_chosen = True
+        elif self.model_chosen and self.round_trip < settings.direct_below:
+            self.model_chosen = False
+
+    def weight(self, now_ns: int) -> float:
+        """Return the model's share of the force now, ramped toward the choice."""
+        elapsed = max(0, now_ns - self._weight_at) / 1e9
+        self._weight_at = now_ns
+        step = elapsed / self.settings.switch_time if self.settings.switch_time > 0 else 1.0
+        goal = 1.0 if self.model_chosen else 0.0
+        self._weight = goal if abs(goal - self._weight) <= step else (
+            self._weight + math.copysign(step, goal - self._weight))
+        return self._weight

@@ -1,0 +1,136 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The contact estimator, the rendered wall and the choice between them (no ROS)."""
+from kraft_master_driver.core.contact_model import (
+    ContactEstimator, ContactModel, MODEL_FIELDS, NO_CONTACT)
+from kraft_master_driver.core.contact_rendering import (
+    ContactRenderer, renderable_stiffness, RendererSettings)
+from kraft_master_driver.core.force_mode import ForceMode, ModeSelector, ModeSettings
+import numpy as np
+import pytest
+
+TABLE = 0.4  # m, z of a table top
+STIFFNESS, DAMPING = 3000.0, 50.0
+
+
+def press(estimator, depths, start=0.0, dt=0.002, table=TABLE):
+    """Feed the estimator a tool at each depth past the table, its spring-damper's force."""
+    previous = None
+    for step, depth in enumerate(depths):
+        rate = 0.0 if previous is None else (depth - previous) / dt
+        force = max(0.0, STIFFNESS * depth + DAMPING * rate) if depth > 0.0 else 0.0
+        estimator.update(np.array([0.3, 0.0, table - depth]), np.array([0.0, 0.0, force]),
+                         start + step * dt)
+        previous = depth
+    return start + len(depths) * dt
+
+
+def test_the_estimator_finds_the_plane_its_stiffness_and_damping():
+    estimator = ContactEstimator()
+    assert estimator.model() == NO_CONTACT
+    depths = [0.002 - 0.00005 * i for i in range(40)]  # from 2 mm above the top
+    depths += [0.004 * np.sin(0.02 * i) ** 2 for i in range(1, 1000)]  # presses in and out
+    press(estimator, depths)
+    model = estimator.model()
+    assert model.normal == pytest.approx((0.0, 0.0, 1.0))
+    assert model.point[2] == pytest.approx(TABLE, abs=2e-4)  # the last reading before
+    assert model.stiffness == pytest.approx(STIFFNESS, rel=0.05)
+    assert model.damping == pytest.approx(DAMPING, rel=0.3)
+    assert model.confidence > 0.5
+
+
+def test_free_motion_past_the_surface_moves_it_and_a_new_touch_finds_it_again():
+    estimator = ContactEstimator()
+    end = press(estimator, [0.001 - 0.0001 * i for i in range(10)]
+                + [0.003 * np.sin(0.01 * i) for i in range(300)])
+    # The table drops 10 mm: the tool goes 12 mm down without a force.
+    for step in range(60):
+        estimator.update(np.array([0.3, 0.0, TABLE - 0.0002 * step]), np.zeros(3),
+                         end + step * 0.002)
+    assert estimator.model().point[2] < TABLE - 0.01
+    # And touches it where it now is.
+    press(estimator, [0.0005 - 0.00005 * i for i in range(20)]
+          + [0.003 * np.sin(0.01 * i) for i in range(300)], start=end + 1.0,
+          table=TABLE - 0.01)
+    assert estimator.model().point[2] == pytest.approx(TABLE - 0.01, abs=2e-4)
+
+
+def test_a_model_crosses_as_named_values_and_bad_ones_are_refused_in_one_line():
+    model = ContactModel((0.1, 0.2, 0.3), (0.0, 0.0, 1.0), 500.0, 2.0, 0.9, True)
+    assert ContactModel.from_values(MODEL_FIELDS, model.values()) == model
+    with pytest.raises(ValueError, match='not finite'):
+        ContactModel.from_values(MODEL_FIELDS, [float('nan')] + model.values()[1:])
+    with pytest.raises(ValueError, match='not 1'):
+        ContactModel.from_values(MODEL_FIELDS, [0, 0, 0, 0, 0, 2.0, 500, 2, 0.9, 1])
+    with pytest.raises(ValueError, match='expected the fields'):
+        ContactModel.from_values(MODEL_FIELDS[:3], [0.0, 0.0, 0.0])
+
+
+def test_the_renderable_wall_follows_colgate_and_schenkel():
+    assert renderable_stiffness(1000.0, 0.4) == pytest.approx(800.0)
+    assert renderable_stiffness(2000.0, 0.4) == pytest.approx(1600.0)
+    assert renderable_stiffness(1000.0, 0.4, damping=0.1) == pytest.approx(600.0)
+
+
+WALL = ContactModel((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 400.0, 0.0, 1.0, True)
+
+
+def test_the_wall_pushes_out_of_the_surface_and_not_in_free_space():
+    renderer = ContactRenderer()
+    renderer.take(WALL, 0)
+    assert renderer.force((0.0, 0.0, 0.01), (0.0, 0.0, 0.0), 1_000_000) == (0.0, 0.0, 0.0)
+    for step in range(2, 12):  # into the surface, 1 mm a step
+        renderer.applied(1.0)
+        force = renderer.force((0.0, 0.0, -0.001 * (step - 1)), (0.0, 0.0, -1.0),
+                               step * 1_000_000)
+    assert force[2] == pytest.approx(400.0 * 0.010)
+    assert renderer.balance > 0.0
+
+
+def test_a_surface_found_past_the_hand_starts_at_the_hand_and_its_force_grows_smoothly():
+    settings = RendererSettings()
+    renderer = ContactRenderer(settings)
+    renderer.take(WALL, 0)
+    forces = []
+    for step in range(1, 400):  # the hand holds 10 mm past the model's surface
+        renderer.applied(1.0)
+        forces.append(renderer.force((0.0, 0.0, -0.01), (0.0, 0.0, 0.0), step * 1_000_000)[2])
+    most = WALL.stiffness * settings.approach_speed / settings.rate_hz + 1e-9
+    assert forces[0] <= most
+    assert np.diff(forces).max() <= most
+    assert forces[-1] == pytest.approx(4.0)  # at its place, as the hand did not move
+
+
+def test_the_wall_fades_rather_than_give_back_more_than_it_took():
+    renderer = ContactRenderer(RendererSettings(update_energy=0.0))
+    renderer.take(WALL, 0)
+    position = -0.01
+    for step in range(1, 300):  # the surface at the hand; then the hand is pulled out fast
+        renderer.applied(1.0)
+        renderer.force((0.0, 0.0, position), (0.0, 0.0, 0.2), step * 1_000_000)
+        position += 0.0002 if step > 100 else 0.0
+    assert renderer.energy_out <= renderer.energy_in + 1e-9
+
+
+def test_a_model_not_refreshed_within_its_timeout_is_gone():
+    renderer = ContactRenderer(RendererSettings(model_timeout=0.5))
+    renderer.take(WALL, 0)
+    renderer.force((0.0, 0.0, 0.001), (0.0, 0.0, 0.0), 1_000_000)
+    assert renderer.force((0.0, 0.0, -0.001), (0.0, 0.0, 0.0), 600_000_000) == (0.0, 0.0, 0.0)
+
+
+def test_auto_chooses_the_model_above_its_round_trip_and_direct_again_below_with_a_ramp():
+    selector = ModeSelector(ModeSettings(ForceMode.AUTO, model_above=0.05, direct_below=0.03,
+                                         switch_time=0.5))
+    selector.delay(0.005, 0)
+    assert selector.weight(0) == 0.0
+    selector.delay(0.04, 1_000_000)  # 80 ms round trip
+    assert selector.model_chosen
+    assert selector.weight(250_000_000) == pytest.approx(0.5)
+    assert selector.weight(600_000_000) == 1.0
+    selector.delay(0.02, 700_000_000)  # 40 ms: inside the hysteresis, still the model
+    assert selector.model_chosen
+    selector.delay(0.005, 10_000_000_000)  # the peak has decayed: direct again
+    assert not selector.model_chosen
+    with pytest.raises(ValueError, match='direct_below'):
+        ModeSelector(ModeSettings(ForceMode.AUTO, model_above=0.02, direct_below=0.03))
