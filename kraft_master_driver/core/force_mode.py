@@ -53,7 +53,7 @@ class ModeSelector:
         self._weight_at = 0
 
     def delay(self, one_way: float, now_ns: int) -> None:
-        """Note the one-way delay (s) of a message from the arm's side, received at `now_ns`."""
+        """Note how long (s) one message from the arm's side took to come, received at `now_ns`."""
         elapsed = max(0, now_ns - self._round_trip_at) / 1e9
         decayed = self.round_trip * math.exp(-elapsed / ROUND_TRIP_MEMORY)
         self.round_trip, self._round_trip_at = max(2.0 * one_way, decayed), now_ns
