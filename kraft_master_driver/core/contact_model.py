@@ -64,8 +64,9 @@ class ContactModel(NamedTuple):
         if stiffness < 0.0 or damping < 0.0 or not 0.0 <= confidence <= 1.0:
             raise ValueError('contact_model: stiffness and damping must be >= 0 and the '
                              'confidence in 0..1')
-        return cls(tuple(values[0:3]), tuple(normal), stiffness, damping, confidence,
-                   values[9] >= 0.5)
+        px, py, pz = values[0:3]
+        nx, ny, nz = normal
+        return cls((px, py, pz), (nx, ny, nz), stiffness, damping, confidence, values[9] >= 0.5)
 
 
 NO_CONTACT = ContactModel((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, 0.0, 0.0, False)
@@ -117,7 +118,9 @@ class ContactEstimator:
         spread = math.sqrt(max(self._covariance[0, 0], 0.0) * max(self._residual, 1e-6))
         confidence = (self._samples / (self._samples + 20.0)) * max(
             0.0, 1.0 - spread / self._stiffness)
-        return ContactModel(tuple(point.tolist()), tuple(normal.tolist()), self._stiffness,
+        px, py, pz = point.tolist()
+        nx, ny, nz = normal.tolist()
+        return ContactModel((px, py, pz), (nx, ny, nz), self._stiffness,
                             self._damping, confidence, self.in_contact)
 
     def predicted_force(self, position: Array) -> float:

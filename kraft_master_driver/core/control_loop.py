@@ -20,7 +20,9 @@ from typing import Any, NamedTuple, Protocol
 
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration
-from kraft_master_driver.core.force_reflection import ForceReflection, STALE, TorqueOutput
+from kraft_master_driver.core.force_mode import ModelFeedback
+from kraft_master_driver.core.force_reflection import (
+    ACTIVE, ForceReflection, STALE, TorqueOutput)
 from kraft_master_driver.core.loop_statistics import LoopStatistics
 from kraft_master_driver.core.pacing import MonotonicClock, Pacer
 from kraft_master_driver.core.passivity import MasterPort
@@ -127,6 +129,8 @@ class ControlLoop:
     priority: the loop thread's SCHED_FIFO priority (0: normal). executor_thread: the native id
     of the thread that spins the node's executor; granted FIFO, the loop runs it one below.
 
+    model: the contact model's side (core.force_mode.ModelFeedback), or None: direct only.
+
     run() cycles in the calling thread until stop() is called or keep_running() is false.
     centre (a 4x4 0T6 array, or None) and publish_decimation may be set from other threads.
     """
@@ -138,7 +142,8 @@ class ControlLoop:
                  take_inputs: Callable[[], None] = lambda: None, publish_decimation: int = 1,
                  priority: int = 0, executor_thread: int | None = None,
                  clock: type[SystemClock] = SystemClock,
-                 keep_running: Callable[[], bool] = lambda: True) -> None:
+                 keep_running: Callable[[], bool] = lambda: True,
+                 model: ModelFeedback | None = None) -> None:
         """Wire the parts together; nothing runs until run()."""
         self.device = device
         self.force = force
@@ -157,6 +162,7 @@ class ControlLoop:
         self.statistics = LoopStatistics()
         self.clock = clock
         self.keep_running = keep_running
+        self.model = model
         self.scheduler = 'normal'
         self.executor_scheduler = 'normal'
         self.memory_lock = 'not locked (loop_priority 0)'
@@ -272,14 +278,25 @@ class ControlLoop:
         c0 = cpu()
         self.take_inputs()
         output = None
+        model = self.model
+        now_ns = self.clock.monotonic_ns()
         if estimate is None:
-            self.master_port.idle(self.clock.monotonic_ns())
+            self.master_port.idle(now_ns)
+            if model is not None:
+                model.idle()
         else:
             centre = self.centre
+            velocity = self.cartesian_velocity
+            model_force = None
+            if model is not None and velocity is not None:
+                pose = estimate.pose
+                model_force = model.force((pose[3], pose[7], pose[11]), velocity[:3], now_ns)
             output = self.force.compute(
-                estimate.rotation, estimate.jacobian, self.clock.monotonic_ns(),
+                estimate.rotation, estimate.jacobian, now_ns,
                 pose=None if centre is None else self.pose(), centre=centre,
-                cartesian_velocity=self.cartesian_velocity, port=self.master_port)
+                cartesian_velocity=velocity, port=self.master_port, model=model_force)
+            if model is not None:
+                model.applied(output.state == ACTIVE)
             if output.state == STALE and self._last_force_state != STALE:
                 self.log.warning(
                     f'no wrench for {self.force.wrench_timeout:g} s (wrench_timeout): '

@@ -12,9 +12,13 @@ agree, as for max_wrench_age), held at its peak and decaying over `ROUND_TRIP_ME
 fast message does not switch back. A switch blends the two forces over `switch_time` s: no
 step at the hand.
 """
+from collections.abc import Sequence
 from enum import StrEnum
 import math
 from typing import NamedTuple
+
+from kraft_master_driver.core.contact_model import ContactModel
+from kraft_master_driver.core.contact_rendering import ContactRenderer
 
 
 class ForceMode(StrEnum):
@@ -31,7 +35,7 @@ ROUND_TRIP_MEMORY = 2.0  # s
 class ModeSettings(NamedTuple):
     """The choice's thresholds (s)."""
 
-    mode: ForceMode = ForceMode.AUTO
+    mode: ForceMode = ForceMode.DIRECT
     model_above: float = 0.05
     direct_below: float = 0.03
     switch_time: float = 0.5
@@ -43,8 +47,8 @@ class ModeSelector:
     def __init__(self, settings: ModeSettings = ModeSettings()) -> None:
         """Start direct, unless force_mode is 'model'."""
         if not 0.0 <= settings.direct_below <= settings.model_above:
-            raise ValueError(f'force_mode: direct_below {settings.direct_below:g} s must be '
-                             f'within 0 .. model_above {settings.model_above:g} s')
+            raise ValueError(f'direct_below: {settings.direct_below:g} s must be within 0 .. '
+                             f'model_above {settings.model_above:g} s')
         self.settings = settings
         self.round_trip = 0.0  # s, the estimate
         self._round_trip_at = 0
@@ -74,3 +78,41 @@ class ModeSelector:
         self._weight = goal if abs(goal - self._weight) <= step else (
             self._weight + math.copysign(step, goal - self._weight))
         return self._weight
+
+
+class ModelFeedback:
+    """
+    The driver's side of the contact model: what comes in, and the model's force each cycle.
+
+    The loop thread hands it each contact model and each message's delay (take, delay), asks
+    it for the model's force and share before each send (force) and tells it what reached the
+    hand (applied). A model that is not fresh renders nothing (core/contact_rendering.py).
+    """
+
+    def __init__(self, selector: ModeSelector, renderer: ContactRenderer) -> None:
+        """Take the choice of mode and the wall."""
+        self.selector = selector
+        self.renderer = renderer
+        self.share = 0.0
+
+    def take(self, model: ContactModel, received_ns: int) -> None:
+        """Take a contact model (master base frame and units) received at `received_ns`."""
+        self.renderer.take(model, received_ns)
+
+    def delay(self, one_way: float, now_ns: int) -> None:
+        """Note how long (s) one message from the arm's side took to come."""
+        self.selector.delay(one_way, now_ns)
+
+    def force(self, position: Sequence[float], velocity: Sequence[float],
+              now_ns: int) -> tuple[Sequence[float], float]:
+        """Return the wall's force on the wrist (N, 3, base frame) and the model's share (0..1)."""
+        self.share = self.selector.weight(now_ns)
+        return self.renderer.force(position, velocity, now_ns), self.share
+
+    def applied(self, active: bool) -> None:
+        """Note whether this cycle's torques carried the force (not zero for a doubt)."""
+        self.renderer.applied(self.share if active else 0.0)
+
+    def idle(self) -> None:
+        """Note a cycle without a pot frame: the wall's books see no motion and no force."""
+        self.renderer.applied(0.0)

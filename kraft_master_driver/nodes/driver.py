@@ -14,7 +14,10 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.core.contact_rendering import ContactRenderer, RendererSettings
 from kraft_master_driver.core.control_loop import ControlLoop, LOOP_THREAD
+from kraft_master_driver.core.force_mode import (
+    ForceMode, ModelFeedback, ModeSelector, ModeSettings)
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.velocity_filter import VelocityFilter
@@ -64,11 +67,13 @@ class KraftMasterNode(Node):
         self.master_port = MasterPort(self.config['passivity_damping'])
         self.master_port.enabled = self.config['passivity']
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
+        self.model = self._model_feedback()
 
         joint_names = [self.config['joint_prefix'] + n for n in kinematics.JOINT_NAMES]
         self.topics = StateTopics(self, self.config, joint_names, self.master_port)
         self.inputs = InputTopics(self, self.config, self.force, self.master_port, {
-            self.config['base_frame']: BASE_FRAME, self.config['wrist_frame']: WRIST_FRAME})
+            self.config['base_frame']: BASE_FRAME, self.config['wrist_frame']: WRIST_FRAME},
+            self.model)
         self.create_service(SetBool, 'enable_force', self._on_enable_force)
         self.create_service(Trigger, 'set_center', self._on_set_center)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -117,10 +122,25 @@ class KraftMasterNode(Node):
             rate_hz=self.config['loop_rate_hz'], take_inputs=self.inputs.take,
             publish_decimation=self.config['publish_decimation'],
             priority=self.config['loop_priority'], executor_thread=threading.get_native_id(),
-            keep_running=self.context.ok)
+            keep_running=self.context.ok, model=self.model)
         # Not a daemon: the interpreter waits for the loop to zero the torques on its way out.
         self._thread = realtime.NamedThread(target=self.loop.run, name=LOOP_THREAD)
         self._thread.start()
+
+    def _model_feedback(self):
+        """Return the contact model's side (None for force_mode 'direct'); ParameterError."""
+        config = self.config
+        mode = ForceMode(config['force_mode'])
+        if mode is ForceMode.DIRECT:
+            return None
+        try:
+            selector = ModeSelector(ModeSettings(mode, config['model_above'],
+                                                 config['direct_below'], config['switch_time']))
+        except ValueError as error:
+            raise ParameterError(f'parameter {error}') from None
+        return ModelFeedback(selector, ContactRenderer(RendererSettings(
+            config['loop_rate_hz'], config['device_damping'], config['approach_speed'],
+            config['update_energy'], config['model_timeout'])))
 
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()

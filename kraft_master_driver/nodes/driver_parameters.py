@@ -3,6 +3,8 @@
 """The parameters of kraft_master_node: name, default, description with units, range."""
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.contact_rendering import RendererSettings
+from kraft_master_driver.core.force_mode import ForceMode, ModeSettings
 from kraft_master_driver.link.protocol import CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE
 from kraft_master_driver.nodes.parameters import Spec
 
@@ -10,6 +12,7 @@ from kraft_master_driver.nodes.parameters import Spec
 SIM_PORT = 'sim'
 
 _NOMINAL = ArmCalibration.nominal('right').to_parameters()['calibration']
+_MODE, _WALL = ModeSettings(), RendererSettings()
 
 PARAMETERS = {
     'arm': Spec('right', 'Which unit: right or left (the left arm mirrors L3).',
@@ -101,4 +104,26 @@ PARAMETERS = {
                               'into it lets the arm press before the contact force has crossed '
                               'back.',
                               read_only=False, low=0.0, high=100.0),
+    'force_mode': Spec(str(_MODE.mode), "What the operator feels: 'direct', the wrench that "
+                       "crossed the link (J^T F); 'model', the arm's contact model "
+                       "(contact_model) rendered as a wall in the loop; 'auto', direct below "
+                       'model_above of measured round trip and the model above it.',
+                       choices=tuple(ForceMode)),
+    'model_above': Spec(_MODE.model_above, "force_mode 'auto': the round trip (s) above which "
+                        'the model is rendered.', low=0.0, high=10.0),
+    'direct_below': Spec(_MODE.direct_below, "force_mode 'auto': the round trip (s) below "
+                         'which direct force comes back (at most model_above).',
+                         low=0.0, high=10.0),
+    'switch_time': Spec(_MODE.switch_time, 'Seconds over which a change of mode blends the two '
+                        'forces.', low=0.0, high=10.0),
+    'device_damping': Spec(_WALL.device_damping, "The device's own viscous damping in its least "
+                           'damped direction (N*s/m): the model is rendered no stiffer than '
+                           '2 * device_damping * loop_rate_hz (N/m; Colgate and Schenkel). The '
+                           "default is the simulated device's.", low=0.0, high=100.0),
+    'approach_speed': Spec(_WALL.approach_speed, 'Speed (m/s) at which a surface that arrived '
+                           "past the hand moves to the model's place.", low=0.001, high=1.0),
+    'update_energy': Spec(_WALL.update_energy, 'Energy (J) one model update may put into the '
+                          "operator's hand.", low=0.0, high=1.0),
+    'model_timeout': Spec(_WALL.model_timeout, 'A contact model not sent again within this '
+                          'is gone: no wall (s).', low=0.01, high=10.0),
 }

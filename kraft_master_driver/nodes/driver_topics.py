@@ -13,6 +13,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import rotations
+from kraft_master_driver.core.contact_model import ContactModel, NO_CONTACT
 from kraft_master_driver.core.link_quality import LinkMonitor
 from kraft_master_driver.core.rate_control import rate_command
 from kraft_master_driver.core.wrench_admission import Rejection, WrenchAdmission
@@ -122,9 +123,15 @@ class InputTopics:
     frame_id, which crtk_python_client sends, as the base frame.
     """
 
-    def __init__(self, node, config, force, master_port, frames):
-        """Subscribe on `node`; frames maps a wrench's frame_id to a force reflection frame."""
+    def __init__(self, node, config, force, master_port, frames, model=None):
+        """
+        Subscribe on `node`; frames maps a wrench's frame_id to a force reflection frame.
+
+        model: the contact model's side (core.force_mode.ModelFeedback), fed with
+        contact_model and every message's delay; None (force_mode 'direct'): no contact_model.
+        """
         self.force = force
+        self.model = model
         self.master_port = master_port
         self.log = node.get_logger()
         self.slave_energy = (0.0, 0.0, 0.0)
@@ -142,6 +149,11 @@ class InputTopics:
         # overwrote would count as lost on the link).
         self._slave_energy_sub = ros_io.subscribe_raw(
             node, Vector3Stamped, 'slave_energy', self._on_slave_energy, 10)
+        self._model_sub = None
+        if model is not None:
+            self._model_sub = node.create_subscription(
+                JointState, 'contact_model', self._on_contact_model,
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
 
     def _subscribe_wrench(self, node, topic):
         # Depth 1: only the newest wrench counts, and a slow cycle takes no stale backlog.
@@ -164,6 +176,9 @@ class InputTopics:
         # Each one's delay to when DDS received it (system clock), not to this cycle's take.
         for data, received_ns in ros_io.take_all_received(self._slave_energy_sub):
             self._on_slave_energy(data, received_ns)
+        if self._model_sub is not None:
+            for message in ros_io.take_all(self._model_sub):
+                self._on_contact_model(message)
         if sources_change is None:
             return
         if refused:  # rclpy keeps one severity per call site: a call for each
@@ -180,8 +195,12 @@ class InputTopics:
             self.log.warning(f'wrench rejected, torques zeroed: {error}',
                              throttle_duration_sec=1.0)
             return
-        admitted = self.admission.admit(values, frame_id, sec * 1_000_000_000 + nanosec,
-                                        time.monotonic_ns(), time.time_ns(), empty_is_base)
+        stamp_ns, now_ns = sec * 1_000_000_000 + nanosec, time.time_ns()
+        received_ns = time.monotonic_ns()
+        admitted = self.admission.admit(values, frame_id, stamp_ns, received_ns, now_ns,
+                                        empty_is_base)
+        if self.model is not None and stamp_ns:
+            self.model.delay((now_ns - stamp_ns) / 1e9, received_ns)
         self.force.hold(admitted)
         if isinstance(admitted, Rejection):
             self.log.warning(f'wrench rejected, torques zeroed: {admitted.text}',
@@ -196,3 +215,18 @@ class InputTopics:
         self.master_port.credit(energies[0])
         self.slave_energy = tuple(energies)
         self.slave_link.add(sec * 1_000_000_000 + nanosec, received_ns)
+
+    def _on_contact_model(self, message):
+        """Hand one contact_model on; a bad one takes the wall away, and is said why."""
+        received_ns = time.monotonic_ns()
+        stamp = message.header.stamp
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if stamp_ns:
+            self.model.delay((time.time_ns() - stamp_ns) / 1e9, received_ns)
+        try:
+            model = ContactModel.from_values(message.name, message.position)
+        except ValueError as error:
+            self.model.take(NO_CONTACT, received_ns)
+            self.log.warning(f'{error}: no wall', throttle_duration_sec=1.0)
+            return
+        self.model.take(model, received_ns)

@@ -3,9 +3,10 @@
 """
 kraft_master_teleop: the bridge between the Kraft Master's driver and a real arm.
 
-Master side, the driver's names: it takes `pose` and `master_energy`, publishes `wrench` and
-`slave_energy`. Arm side, CRTK names to remap: it publishes `servo_cp` (pose mode) or
-`servo_cv` (twist mode) and takes `measured_cp` and `measured_cf`. `clutch` (or a `joy`
+Master side, the driver's names: it takes `pose` and `master_energy`, publishes `wrench`,
+`slave_energy` and `contact_model` (the contact it estimates, for the driver to render). Arm
+side, CRTK names to remap: it publishes `servo_cp` (pose mode) or `servo_cv` (twist mode) and
+takes `measured_cp` and `measured_cf`. `clutch` (or a `joy`
 button) holds the arm and frees the master; the services `enable` and `tare` start it and zero
 the F/T bias. The logic is core.teleoperation.Teleoperation: each input and each tick goes in
 as one call and comes back as what to send; this node decodes, calls and publishes.
@@ -25,6 +26,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import realtime
+from kraft_master_driver.core.contact_model import MODEL_FIELDS
 from kraft_master_driver.core.link_quality import LinkMonitor
 from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
 from kraft_master_driver.core.teleoperation_settings import Settings
@@ -43,7 +45,7 @@ from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallba
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.time import Time
-from sensor_msgs.msg import Joy
+from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
@@ -96,6 +98,7 @@ class TeleopNode(Node):
                           else self.create_publisher(TwistStamped, 'servo_cv', reliable, **quiet))
         self.wrench_pub = self.create_publisher(WrenchStamped, 'wrench', reliable, **quiet)
         self.energy_pub = self.create_publisher(Vector3Stamped, 'slave_energy', reliable, **quiet)
+        self.model_pub = self.create_publisher(JointState, 'contact_model', reliable, **quiet)
         self.state_pub = self.create_publisher(String, 'operating_state', QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL), **quiet)
@@ -292,6 +295,12 @@ class TeleopNode(Node):
             self.wrench_pub.publish(self._wrench_cdr.encode(*self._now(), outputs.wrench))
         if outputs.slave_energy is not None:
             self.energy_pub.publish(self._energy_cdr.encode(*self._now(), outputs.slave_energy))
+        if outputs.contact_model is not None:
+            message = JointState(name=list(MODEL_FIELDS),
+                                 position=outputs.contact_model.values())
+            message.header.frame_id = self.bridge.settings.master_frame
+            message.header.stamp = self.get_clock().now().to_msg()
+            self.model_pub.publish(message)
 
     def _tick(self):
         """Enable at start once it can; send what the bridge's tick returns."""

@@ -21,8 +21,9 @@ from typing import NamedTuple
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.contact_rendering import ContactRenderer, RendererSettings
-from kraft_master_driver.core.force_mode import ForceMode, ModeSelector, ModeSettings
-from kraft_master_driver.core.force_reflection import ForceReflection
+from kraft_master_driver.core.force_mode import (
+    ForceMode, ModelFeedback, ModeSelector, ModeSettings)
+from kraft_master_driver.core.force_reflection import ACTIVE, ForceReflection
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.teleoperation import Teleoperation
 from kraft_master_driver.core.teleoperation_settings import Settings
@@ -117,9 +118,9 @@ class _Master:
         self.velocity_filter = VelocityFilter(50.0)
         self.port = MasterPort(session.passivity_damping)
         self.port.enabled = session.passivity
-        self.renderer = ContactRenderer(RendererSettings(rate_hz=1.0 / DT))
-        self.selector = ModeSelector(ModeSettings(ForceMode(session.force_mode)))
-        self.share = 0.0  # the model's share of the force this cycle
+        self.feedback = ModelFeedback(
+            ModeSelector(ModeSettings(ForceMode(session.force_mode))),
+            ContactRenderer(RendererSettings(rate_hz=1.0 / DT)))
         self.calibration = ArmCalibration.nominal(ARM) if session.pot_counts else None
         self.previous = None
         self.felt = 0.0
@@ -144,20 +145,18 @@ class _Master:
         position = (pose[3], pose[7], pose[11])
         to_arm.send(t, (position, port.energy_in))
         for wrench, energy, model, sent in to_master.due(t):
-            self.selector.delay(t - sent, now_ns)
+            self.feedback.delay(t - sent, now_ns)
             if wrench is not None:
                 self.reflection.hold(self.admission.admit(wrench, BASE_FRAME, 0, now_ns, 0))
                 if self.first_force is None and math.hypot(*wrench[:3]) >= FIRST_FORCE:
                     self.first_force = (t, port.energy_in)
             if model is not None:
-                self.renderer.take(model, now_ns)
+                self.feedback.take(model, now_ns)
             port.credit(energy)
-        self.share = self.selector.weight(now_ns)
-        model_force = self.renderer.force(position, twist[:3], now_ns)
         out = self.reflection.compute((pose[0:3], pose[4:7], pose[8:11]), jacobian, now_ns,
                                       cartesian_velocity=twist, port=port,
-                                      model=(model_force, self.share))
-        self.renderer.applied(self.share if out.state == 'active' else 0.0)
+                                      model=self.feedback.force(position, twist[:3], now_ns))
+        self.feedback.applied(out.state == ACTIVE)
         self.felt = _felt(theta, out.actuator)
         self.model.motor[:5] = list(out.actuator)
         self.model.step(DT, hand)
@@ -259,7 +258,7 @@ def _simulate(session, phases):
             command_z = start[2] if command is None else command.position[2]
             log.append((t, top - (start[2] + wrist[2] - home[2]), top - command_z,
                         top - arm.tool_position()[2], arm.table_contact_force() @ NORMAL,
-                        master.felt, master.share))
+                        master.felt, master.feedback.share))
             k += 1
     return np.array(log), master, bridge.port
 
@@ -372,9 +371,9 @@ def tapping_figures(session=Session(), tapping=Tapping(), window=1.0):
     arm_felt = np.flatnonzero(log[:, 4] >= FIRST_FORCE)
     master_felt = np.flatnonzero(log[:, 5] >= FIRST_FORCE)
     return touches, {
-        'possible_stiffness': min(series, master.renderer.max_stiffness),
+        'possible_stiffness': min(series, master.feedback.renderer.max_stiffness),
         'arm_first_force': float(log[arm_felt[0], 0]) if arm_felt.size else math.nan,
         'master_first_force': float(log[master_felt[0], 0]) if master_felt.size else math.nan,
-        'wall_balance': master.renderer.balance,
+        'wall_balance': master.feedback.renderer.balance,
         'max_table_force': float(log[:, 4].max()),
     }
