@@ -20,6 +20,7 @@ CONSTRAINTS ?= --constraint $(LOCK)
 DURATION ?= 20
 DELAY_MS ?= 0
 PASSIVITY ?= off
+FORCE_MODE ?= direct
 ARM ?= mujoco
 
 # Keep DDS discovery on this machine for everything started from here.
@@ -61,7 +62,7 @@ $(PACKAGE_STAMP): setup.py setup.cfg | $(VPY)
 
 demo: $(RUNTIME)
 	$(VPY) -m kraft_master_driver.tools.demo --duration $(DURATION) --delay-ms $(DELAY_MS) \
-		--passivity $(PASSIVITY) --arm $(ARM)
+		--passivity $(PASSIVITY) --force-mode $(FORCE_MODE) --arm $(ARM)
 
 # The inner loop while editing: the unit tests that start no process and take under half a
 # second each, those of nodes/ and tools/ too (they import rclpy, and start nothing). On this

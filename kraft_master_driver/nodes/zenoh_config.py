@@ -24,6 +24,7 @@ STREAMS = {
     'clutch': ('std_msgs/msg/Bool', 'master'),
     'wrench': ('geometry_msgs/msg/WrenchStamped', 'arm'),
     'slave_energy': ('geometry_msgs/msg/Vector3Stamped', 'arm'),
+    'contact_model': ('sensor_msgs/msg/JointState', 'arm'),
 }
 # One chunk of a key prefix: no wildcards (* $ ? #), no empty chunk.
 CHUNK = re.compile(r'^[A-Za-z0-9_.-]+$')

@@ -5,7 +5,7 @@ kraft_master_zenoh_link: the teleop streams between two sites over Zenoh, with m
 
 One link runs on each site, inside its DDS island: side master beside the driver, side arm
 beside the bridge. The master's link sends `pose`, `master_energy` and `clutch`, the arm's
-`wrench` and `slave_energy` (zenoh_config.STREAMS), each as its CDR bytes on
+`wrench`, `slave_energy` and `contact_model` (zenoh_config.STREAMS), each as its CDR bytes on
 `<pair>/to_<side>/<topic>`, and each publishes what it receives on its own island. One side
 listens, the other connects; both speak only TLS, each with its certificate signed by one root
 CA, and let only the peer whose certificate bears `tls.peer_common_name` put or subscribe.

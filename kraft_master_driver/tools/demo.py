@@ -28,6 +28,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.force_mode import ForceMode
 from kraft_master_driver.core.process import STOP_SIGNALS
 from kraft_master_driver.nodes.arm_sim import PARAMETERS as MUJOCO_ARM_PARAMETERS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS as DRIVER_PARAMETERS
@@ -92,7 +93,7 @@ REFRESH = {True: 0.1, False: 1.0}  # s between readouts on a terminal, and piped
 ENGAGE_REFRESH = 0.02  # s between looks at the master's pose until the bridge is enabled
 EMULATOR = [sys.executable, '-m', 'kraft_master_driver.nodes.link_emulator', '--ros-args',
             '-p', 'to_slave.topics:=[pose, master_energy]',
-            '-p', 'to_master.topics:=[wrench, slave_energy]']
+            '-p', 'to_master.topics:=[wrench, slave_energy, contact_model]']
 
 
 def ros_parameters(parameters):
@@ -343,7 +344,8 @@ def _stop_on_signal(*_):
     raise KeyboardInterrupt
 
 
-def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mujoco'):
+def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mujoco',
+                force_mode='direct'):
     """
     Run the processes for `duration` s once all are up (or until Ctrl-C), showing them.
 
@@ -351,6 +353,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
     relays between it and the driver's with half of delay_ms each way; passivity turns it on
     at both ends (the driver's master port, the bridge's slave port). `arm`: 'point-mass'
     (kraft_master_slave_sim) or 'mujoco' (kraft_master_arm_sim, with the bridge it needs).
+    force_mode: the driver's (direct, model or auto; doc/force-feedback.md).
     """
     mujoco = arm == 'mujoco'
     log = ProcessLog()
@@ -371,6 +374,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
             screen.show(log.new_lines(), ['the simulator did not start'])
             return 1
         passive = ['-p', f'passivity:={str(passivity).lower()}']
+        mode = ['-p', f'force_mode:={force_mode}']
         # The wrench reaches the driver one way's delay after its stamp: admit that much more.
         wrench_age = ['-p', f'max_wrench_age:={MAX_WRENCH_AGE_S + delay_ms / 2e3}']
         arm_child = child
@@ -384,7 +388,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
                  '-p', f'to_slave.delay:={one_way}', '-p', f'to_master.delay:={one_way}'],
                 stdout=log.file, **child))
         processes[:0] = [
-            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *wrench_age,
+            subprocess.Popen([*DRIVER, '-p', f'port:={port}', *passive, *mode, *wrench_age,
                               *ros_parameters(MUJOCO_DRIVER if mujoco else {})],
                              stdout=log.file, **child),
             subprocess.Popen([*TELEOP, *ros_parameters(MUJOCO_BRIDGE if mujoco else BRIDGE),
@@ -454,6 +458,10 @@ def main(argv=None):
                              'emulator')
     parser.add_argument('--passivity', choices=('on', 'off'), default='off',
                         help='time-domain passivity at both ends (default off)')
+    parser.add_argument('--force-mode', choices=tuple(ForceMode), default='direct',
+                        help="what the operator feels: 'direct' (default), the arm's wrench; "
+                             "'model', the arm's contact model rendered by the driver; 'auto', "
+                             'chosen by the measured round trip (doc/force-feedback.md)')
     parser.add_argument('--arm', choices=('mujoco', 'point-mass'), default='mujoco',
                         help="the simulated arm: 'mujoco' (default), the Franka Panda on its "
                              "table, or 'point-mass', a point mass against a wall")
@@ -463,7 +471,8 @@ def main(argv=None):
     print(f'Simulated teleoperation{panda} for {args.duration:g} s (Ctrl-C to stop) ...',
           flush=True)
     return teleoperate(args.duration, delay_ms=args.delay_ms,
-                       passivity=args.passivity == 'on', arm=args.arm)
+                       passivity=args.passivity == 'on', arm=args.arm,
+                       force_mode=args.force_mode)
 
 
 if __name__ == '__main__':

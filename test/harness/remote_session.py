@@ -219,7 +219,7 @@ def run_row(prefix, round_trip_ms, loss, passivity, seed, arm='point-mass', past
                 start(master_host, prefix, master_domain, 'kraft_master_link_emulator', [
                     ('slave_domain_id', slave_domain), ('seed', seed),
                     ('to_slave.topics', "['pose', 'master_energy']"),
-                    ('to_master.topics', "['wrench', 'slave_energy']"),
+                    ('to_master.topics', "['wrench', 'slave_energy', 'contact_model']"),
                     ('to_slave.delay', one_way), ('to_master.delay', one_way),
                     ('to_slave.loss', loss), ('to_master.loss', loss)])
             start(slave_host, prefix, slave_domain, 'kraft_master_teleop', [

@@ -8,7 +8,7 @@ import pytest
 
 def test_the_streams_cross_once_each_way_and_nothing_else():
     assert zenoh_config.outgoing('master') == ('pose', 'master_energy', 'clutch')
-    assert zenoh_config.outgoing('arm') == ('wrench', 'slave_energy')
+    assert zenoh_config.outgoing('arm') == ('wrench', 'slave_energy', 'contact_model')
     assert zenoh_config.incoming('arm') == zenoh_config.outgoing('master')
     assert zenoh_config.incoming('master') == zenoh_config.outgoing('arm')
 
