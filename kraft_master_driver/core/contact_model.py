@@ -82,12 +82,13 @@ class EstimatorSettings(NamedTuple):
     damping_guess: float = 0.0  # N*s/m
     min_stiffness: float = 100.0  # N/m: below this the fit is not a contact
     free_depth: float = 0.001  # m past the surface without force: the surface is not there
+    still_speed: float = 0.02  # m/s: slower than this, the force's direction is the normal's
 
 
 # Prior variances of the fit (stiffness, damping) at a new touch.
 _PRIOR = (1e6, 1e4)
 _TRACE_CAP = 1e8  # keeps forgetting from winding the covariance up while the data say nothing
-SAME_SURFACE = math.cos(math.radians(30.0))  # a touch this near the normal: the same surface
+SAME_SURFACE = math.cos(math.radians(45.0))  # a touch this near the normal: the same surface
 
 
 class ContactEstimator:
@@ -141,16 +142,21 @@ class ContactEstimator:
             self._begin_touch(before, force / magnitude)
         self.in_contact = touching
         if not touching:
-            self._check_free(position)
+            if previous is not None:
+                self._check_free(position, previous[0])
             return
-        # The normal is the mean direction of the forces, over this touch and those before on
-        # the same surface: friction tilts each force, and its tilts average out.
-        self._force_sum = self._force_sum + force
-        self._normal = normal = self._force_sum / np.linalg.norm(self._force_sum)
         if previous is None or now <= previous[1]:
             return
+        velocity = (position - previous[0]) / (now - previous[1])
+        if float(np.linalg.norm(velocity)) < settings.still_speed:
+            # The normal is the mean direction of the forces while the arm is nearly still,
+            # over every touch of this surface: impacts and sliding friction tilt the force.
+            self._force_sum = self._force_sum + force
+            self._normal = self._force_sum / np.linalg.norm(self._force_sum)
+        normal = self._normal
+        assert normal is not None  # the touch began with one
         depth = float(normal @ (self._surface - position))
-        rate = float(normal @ (position - previous[0])) / (now - previous[1])
+        rate = float(normal @ velocity)
         self._offset = float(normal @ self._surface)
         self._fit(np.array([depth, -rate]), float(normal @ force))
 
@@ -158,8 +164,7 @@ class ContactEstimator:
         """Begin a touch: the plane through here, the fit restarted from the last k and b."""
         if self._normal is None or float(self._normal @ direction) < SAME_SURFACE:
             self._force_sum = np.zeros(3)
-        self._force_sum *= 0.5  # the touches before weigh less
-        self._normal = direction if not self._force_sum.any() else self._normal
+            self._normal = direction
         self._surface = position
         self._offset = float(direction @ position)
         self._theta = np.array([self._stiffness, self._damping])
@@ -186,11 +191,17 @@ class ContactEstimator:
             self._stiffness = float(stiffness)
             self._damping = max(0.0, float(damping))
 
-    def _check_free(self, position: Array) -> None:
-        """Without force past the surface, the surface is not there: move it past the arm."""
+    def _check_free(self, position: Array, before: Array) -> None:
+        """
+        Without force past the surface, the surface is not there: move it past the arm.
+
+        Not while the arm moves out of it: a surface that springs back slower than the arm
+        leaves (a table top on its spring) is still there.
+        """
         if self._normal is None:
             return
         height = float(self._normal @ position)
-        if height < self._offset - self.settings.free_depth:
+        leaving = height > float(self._normal @ before)
+        if not leaving and height < self._offset - self.settings.free_depth:
             self._offset = height
             self._surface = position

@@ -12,7 +12,9 @@ model of stiffness 0 while the arm does not follow, so the master renders no wal
 
 Where the arm presses harder than the model the master was last sent, by more than
 model_tolerance, the arm yields: its target goes no deeper along the normal until the force is
-back within half the tolerance (Motion.floor), while the model is corrected.
+back within half the tolerance (Motion.floor), while the model is corrected. model_tolerance 0
+(the default) leaves the yielding to the arm's impedance: an impact's force is far above any
+quasi-static model, and with direct force the master never renders the model.
 """
 import math
 from typing import NamedTuple, Optional
@@ -72,14 +74,14 @@ class ContactSharing:
         """Take the arm's position, the contact force (arm base) and the command's position."""
         self.estimator.update(position, force, now)
         known = self._known
-        if known.stiffness <= 0.0:
+        tolerance = self.settings.model_tolerance
+        if known.stiffness <= 0.0 or tolerance <= 0.0:
             self.floor = None
             return
         normal = np.array(known.normal)
         pressing = float(normal @ force)
         expected = known.stiffness * max(float(normal @ (np.array(known.point) - position)), 0.0)
         excess = pressing - expected
-        tolerance = self.settings.model_tolerance
         if command is not None and excess > tolerance:
             if self.floor is None:
                 self.floor = (normal, float(normal @ command))

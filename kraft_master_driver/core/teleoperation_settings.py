@@ -55,7 +55,7 @@ class Settings(NamedTuple):
     passivity: bool = False
     drift_gain: float = 2.0
     slave_port_force: str = 'contact'  # one of SLAVE_PORT_FORCES
-    model_tolerance: float = 3.0  # N the contact force may exceed the contact model's
+    model_tolerance: float = 0.0  # N the contact force may exceed the contact model's; 0: any
 
 
 class Checked(NamedTuple):

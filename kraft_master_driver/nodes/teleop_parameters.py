@@ -114,7 +114,8 @@ PARAMETERS = {
     'model_tolerance': _tunable('model_tolerance', 'Force (N) by which the arm may press harder '
                                 'than the contact model the master was last sent; beyond it the '
                                 "arm's target goes no deeper into the surface until the force "
-                                'is back within half of it.', low=0.0, high=1e4),
+                                'is back within half of it; 0: no such limit, the arm yields by '
+                                'its impedance alone.', low=0.0, high=1e4),
     'enable_at_start': Spec(False, 'Enable once, as soon as enable would succeed (for launch '
                             'files); false: wait for the enable service. Fixed: it acts at '
                             'start-up.'),

@@ -134,3 +134,46 @@ def test_auto_chooses_the_model_above_its_round_trip_and_direct_again_below_with
     assert not selector.model_chosen
     with pytest.raises(ValueError, match='direct_below'):
         ModeSelector(ModeSettings(ForceMode.AUTO, model_above=0.02, direct_below=0.03))
+
+
+def test_the_bridge_sends_the_model_in_the_masters_frame_on_change_and_as_a_heartbeat():
+    from kraft_master_driver.core.teleoperation_contact import (
+        ContactSharing, HEARTBEAT, Registration)
+    from kraft_master_driver.core.teleoperation_motion import Pose
+    from kraft_master_driver.core.teleoperation_settings import Settings
+    sharing = ContactSharing(Settings(scale=2.0, force_scale=0.5, arm_stiffness=1000.0))
+    press(sharing.estimator, [0.001 - 0.0001 * i for i in range(10)]
+          + [0.003 * np.sin(0.01 * i) for i in range(300)])
+    master = Pose(np.array([0.1, 0.0, 0.2]), np.eye(3))
+    arm = Pose(np.array([0.3, 0.0, TABLE + 0.05]), np.eye(3))
+    registration = Registration(master, arm, np.eye(3))
+    model = sharing.to_send(registration, 10.0)
+    # The table 50 mm below the arm is 25 mm below the master at scale 2.
+    assert model.point[2] == pytest.approx(0.2 - 0.025, abs=1e-4)
+    series = STIFFNESS * 1000.0 / (STIFFNESS + 1000.0)
+    assert model.stiffness == pytest.approx(series * 2.0 * 0.5, rel=0.05)
+    assert sharing.to_send(registration, 10.0 + HEARTBEAT / 2) is None
+    assert sharing.to_send(registration, 10.0 + 1.5 * HEARTBEAT) == model
+    # Not following: a model of no stiffness, the master renders no wall.
+    assert sharing.to_send(None, 10.0 + 1.5 * HEARTBEAT).stiffness == 0.0
+
+
+def test_with_a_tolerance_the_arm_yields_where_it_presses_harder_than_the_model():
+    from kraft_master_driver.core.teleoperation_contact import ContactSharing, Registration
+    from kraft_master_driver.core.teleoperation_motion import Pose
+    from kraft_master_driver.core.teleoperation_settings import Settings
+    sharing = ContactSharing(Settings(model_tolerance=2.0))
+    press(sharing.estimator, [0.001 - 0.0001 * i for i in range(10)]
+          + [0.003 * np.sin(0.01 * i) for i in range(300)])
+    pose = Pose(np.zeros(3), np.eye(3))
+    sharing.to_send(Registration(pose, pose, np.eye(3)), 10.0)
+    command = np.array([0.3, 0.0, TABLE - 0.002])
+    at_two_mm = STIFFNESS * 0.002
+    sharing.reading(command, np.array([0.0, 0.0, at_two_mm + 1.0]), command, 10.1)
+    assert sharing.floor is None  # within the tolerance
+    sharing.reading(command, np.array([0.0, 0.0, at_two_mm + 5.0]), command, 10.2)
+    normal, least = sharing.floor
+    assert normal == pytest.approx([0.0, 0.0, 1.0], abs=1e-3)
+    assert least == pytest.approx(TABLE - 0.002, abs=1e-4)
+    sharing.reading(command, np.array([0.0, 0.0, at_two_mm]), command, 10.3)
+    assert sharing.floor is None
