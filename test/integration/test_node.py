@@ -9,7 +9,6 @@ import re
 import select
 import signal
 import subprocess
-import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -227,21 +226,6 @@ def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
             'the last command must be zero torque'
     finally:
         running.close()
-
-
-def test_a_shutdown_that_hangs_still_ends_the_process():
-    # As if a DDS teardown never returned: the process ends after SHUTDOWN_LIMIT_S, saying so.
-    script = ('import sys, time\n'
-              'from kraft_master_driver.nodes import node_process\n'
-              'node_process.SHUTDOWN_LIMIT_S = 0.2\n'
-              'node_process._exit_if_stuck("kraft_master_node", 0)\n'
-              'time.sleep(60)\n')
-    result = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
-                            timeout=50)
-    assert result.returncode == 0
-    first, *stacks = result.stderr.splitlines()
-    assert first == 'kraft_master_node: shutdown did not finish in 0.2 s; exiting; its threads:'
-    assert any('time.sleep(60)' in line or 'line 5' in line for line in stacks), stacks
 
 
 def scheduling_of_threads(pid):
