@@ -9,7 +9,8 @@ integer wherever a floating-point value is expected (at start-up and at run time
 stays DOUBLE), and checks every value against its Spec. run_time_changes() checks a set at run
 time the same way, and refuses one of a parameter fixed at start-up. read_params_file() checks a
 params file as rcl would read it; usage() is a node's --help text. Every refusal is a
-ParameterError of one line; node_process.run_node() prints it and exits 1.
+ParameterError of one line; node_process.run_node() prints it and exits 1. launch_argument()
+checks a launch file's argument that gives a parameter its value, as the node would.
 """
 import difflib
 import math
@@ -114,6 +115,25 @@ def check_value(table, name, value):
     if spec.low is not None:
         _check_range(name, spec, value)
     return value
+
+
+def launch_argument(table, name, text):
+    """
+    Return launch argument `name`:=`text` as the number parameter `name` of `table` takes it.
+
+    A text that is not such a number, or a value check_value() refuses, raises ParameterError
+    of one line naming the argument: `contact_damping:=-1: -1.0 is outside 0..100`.
+    """
+    kind = type(table[name].default)
+    try:
+        value = kind(text)
+    except ValueError:
+        raise ParameterError(f'{name}:={text}: expected {_KIND_NAMES[kind]}') from None
+    try:
+        return check_value(table, name, value)
+    except ParameterError as error:
+        reason = str(error).removeprefix(f'parameter {name}: ')
+        raise ParameterError(f'{name}:={text}: {reason}') from None
 
 
 def _check_range(name, spec, value):

@@ -9,8 +9,8 @@ import importlib
 import itertools
 
 from kraft_master_driver.nodes.parameters import (
-    check_value, coerce_integers, declare_parameters, descriptor, ParameterError,
-    read_params_file, reject_unknown, run_time_changes, Spec, usage)
+    check_value, coerce_integers, declare_parameters, descriptor, launch_argument,
+    ParameterError, read_params_file, reject_unknown, run_time_changes, Spec, usage)
 import pytest
 from rcl_interfaces.msg import ParameterType
 import rclpy
@@ -161,6 +161,22 @@ def test_the_descriptor_carries_the_range_the_choices_and_read_only():
     assert descriptor('lengths', TABLE['lengths']).additional_constraints == (
         '4 values, each within 0.001..2')
     assert descriptor('rotation', TABLE['rotation']).additional_constraints == '3 or 4 values'
+
+
+@pytest.mark.parametrize('name, text, message', [
+    ('rate_hz', '-1', 'rate_hz:=-1: -1.0 is outside 1..5000'),
+    ('rate_hz', 'abc', 'rate_hz:=abc: expected a number'),
+    ('rate_hz', 'nan', 'rate_hz:=nan: nan is outside 1..5000'),
+    ('rate_hz', '', 'rate_hz:=: expected a number'),
+    ('baud', '9600.5', 'baud:=9600.5: expected an integer'),
+])
+def test_a_bad_launch_argument_is_refused_in_one_line_naming_it(name, text, message):
+    assert refusal(launch_argument, TABLE, name, text) == message
+
+
+def test_a_launch_argument_is_taken_as_its_parameter():
+    assert launch_argument(TABLE, 'rate_hz', '250') == 250.0
+    assert launch_argument(TABLE, 'baud', '9600') == 9600
 
 
 # -- a node's parameters -----------------------------------------------------------------------
