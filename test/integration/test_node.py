@@ -359,7 +359,8 @@ def test_integers_are_accepted_for_double_parameters(install_prefix, tmp_path):
         running.close()
 
 
-def test_rate_command_is_advertised_only_once_enabled(install_prefix):
+def test_rate_command_is_advertised_only_once_enabled_and_says_it_waits_for_a_centre(
+        install_prefix):
     running = Session(install_prefix)  # rate_command_enabled false
     try:
         client = running.client
@@ -385,6 +386,11 @@ def test_rate_command_is_advertised_only_once_enabled(install_prefix):
             [Parameter('rate_command_enabled', value=False)])).results[0]
         assert result.successful, result.reason
         assert '/rate_command' in published()
+        code, output = running.driver.interrupt()
+        assert code == 0, output
+        # Enabled once without a centre: one line says what it waits for.
+        assert output.count('rate_command enabled: nothing is published until /set_center sets '
+                            'the centre') == 1, output
     finally:
         running.close()
 
