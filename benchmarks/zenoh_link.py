@@ -116,7 +116,7 @@ def run(kind, sites, rate, seconds):
                                     [('stream_timeout', 10.0)], listen=endpoint))
             links.append(start_link(master, master_env, sites, 'master', 'arm',
                                     connect=endpoint))
-            wait_for_lines(links[0], '1 authenticated peer', 'relaying the poses')
+            wait_for_lines(links[0], 'authenticated peer master connected', 'relaying the poses')
         cpu_before = [process_cpu_s(link.pid) for link in links]
         started = time.monotonic()
         delays, sent = stream(master, master_env, arm, arm_env, rate, seconds)

@@ -13,7 +13,9 @@ urdf/kraft_master_<arm>.urdf alike, so two arms share one TF tree: wrenches sent
 carry its prefixed frame_id. With rsp:=true a robot_state_publisher per arm publishes the arm's
 URDF links on TF from its joint_states. With crtk:=true each driver also answers under CRTK's
 names (measured_js, measured_cp, servo_cf; doc/ros-interface.md). Everything the launch needs
-(parameter files, robot_state_publisher) is checked before any process starts.
+(parameter files, robot_state_publisher, an argument that is a driver parameter's value, such
+as contact_damping, checked as the driver would) is checked before any process starts. A node
+that fails (exits non-zero) ends the launch, with exit 1.
 
 The launch files share one vocabulary of arguments, each declared once: this file declares the
 driver's, teleop.launch.py adds the bridge's and the arm's, and each file takes those of ARGUMENTS
@@ -26,6 +28,8 @@ import os
 from ament_index_python.packages import (
     get_package_prefix, get_package_share_directory, PackageNotFoundError)
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS
+from kraft_master_driver.nodes.parameters import launch_argument, ParameterError
 from kraft_master_driver.simulation.master.operators import OPERATORS
 from kraft_master_driver.tools.urdf_model import driver_names, package_file_name
 from launch import LaunchDescription
@@ -42,6 +46,8 @@ ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_param
              'force_enabled', 'contact_damping', 'rate_command', 'crtk', 'sim_operator', 'rsp')
 # ros2 launch's own options (--launch-prefix), which it hands over as launch arguments.
 LAUNCH_OPTIONS = ('launch-prefix', 'launch-prefix-filter')
+# The arguments that are the value of the driver's parameter of the same name.
+PARAMETER_ARGUMENTS = ('contact_damping',)
 
 
 class LaunchCheckError(RuntimeError):
@@ -69,6 +75,27 @@ def check_params_file(arm, path):
     if calibration.arm != arm:
         raise LaunchCheckError(
             f'{arm}_params_file: {path} calibrates the {calibration.arm} arm, not the {arm} arm')
+
+
+def checked_parameters(value):
+    """Return {name: value} of the PARAMETER_ARGUMENTS; LaunchCheckError naming a bad one."""
+    try:
+        return {name: launch_argument(PARAMETERS, name, value(name))
+                for name in PARAMETER_ARGUMENTS}
+    except ParameterError as error:
+        raise LaunchCheckError(str(error)) from None
+
+
+def end_launch_if_failed(event, _context):
+    """
+    End the launch with exit 1 if a node's process exited non-zero (every node's on_exit).
+
+    A node that dies at start-up (a parameter it refuses) ends the launch rather than leave the
+    others running without it; an exception here is what makes ros2 launch exit 1.
+    """
+    if event.returncode != 0:
+        raise LaunchCheckError(f'{event.process_name} exited with code {event.returncode}; '
+                               'the launch stops')
 
 
 def check_given(context, file_name, names, refused):
@@ -163,7 +190,7 @@ def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command,
     """Return the driver of `arm` and, if `rsp`, its robot_state_publisher."""
     nodes = [Node(
         package=PACKAGE, executable='kraft_master_node', namespace=arm, output='screen',
-        parameters=[
+        on_exit=end_launch_if_failed, parameters=[
             params_file,
             {'port': port, 'force_enabled_at_start': force_enabled,
              'contact_damping': contact_damping,
@@ -176,11 +203,13 @@ def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command,
             description = urdf.read()
         nodes.append(Node(
             package='robot_state_publisher', executable='robot_state_publisher',
-            namespace=arm, output='screen', parameters=[{'robot_description': description}]))
+            namespace=arm, output='screen', on_exit=end_launch_if_failed,
+            parameters=[{'robot_description': description}]))
     return nodes
 
 
 def _nodes(value):
+    parameters = checked_parameters(value)
     arms, rsp = ARM_SETS[value('arms')], value('rsp') == 'true'
     if rsp:
         check_package('robot_state_publisher', 'rsp:=true')
@@ -192,7 +221,7 @@ def _nodes(value):
         nodes += arm_nodes(arm, params_files[arm], value(f'{arm}_port'),
                            value('force_enabled') == 'true', value('sim_operator'),
                            value('rate_command') == 'true', rsp, value('crtk') == 'true',
-                           float(value('contact_damping')))
+                           parameters['contact_damping'])
     return nodes
 
 

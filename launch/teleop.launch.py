@@ -13,8 +13,9 @@ with the bridge settings of kraft_master_demo) on the bridge's arm-side topics (
 servo_cv in, measured_cp and measured_cf out), in frames that carry the arm as prefix so that
 two pairs share one TF tree. With enable:=true the bridge enables itself once the master's pose
 and the arm's pose and force reading are fresh (the arm is simulated: nothing real moves); else
-call /<arm>/enable. The driver's checks run before any process starts. crtk is not taken: the
-driver's CRTK topics would be the simulated arm's, in the same namespace.
+call /<arm>/enable. The driver's checks run before any process starts, and a node that fails
+ends the launch with exit 1 (kraft_master.launch.py). crtk is not taken: the driver's CRTK
+topics would be the simulated arm's, in the same namespace.
 """
 import os
 
@@ -82,10 +83,11 @@ def pair_nodes(arm, mode, enable, arm_model):
     arm_parameters = {'mode': mode, **frames} if arm_model == 'point_mass' else frames
     return [
         Node(package=PACKAGE, executable='kraft_master_teleop', namespace=arm, output='screen',
+             on_exit=DRIVER.end_launch_if_failed,
              parameters=[{'mode': mode, 'enable_at_start': enable, **bridge_settings(arm_model),
                           'master_frame': driver_names(arm)['base_frame'], **frames}]),
         Node(package=PACKAGE, executable=ARM_MODELS[arm_model], namespace=arm, output='screen',
-             parameters=[arm_parameters]),
+             on_exit=DRIVER.end_launch_if_failed, parameters=[arm_parameters]),
     ]
 
 
@@ -97,6 +99,7 @@ def _actions(value):
         if value(name) == '':
             return str(model.get(name, DRIVER.arguments()[name].default_value[0].text))
         return value(name)
+    DRIVER.checked_parameters(driver_value)  # before any process of the pairs starts
     actions = [DRIVER.scoped_include('kraft_master.launch.py', {
         name: driver_value(name) for name in ARGUMENTS if name in DRIVER.ARGUMENTS})]
     for arm in DRIVER.ARM_SETS[value('arms')]:

@@ -78,7 +78,10 @@ def checked(settings: Settings) -> Checked:
     sensor_rotation = rotation_parameter('sensor_rotation', settings.sensor_rotation)
     box = (np.array(settings.workspace_min, dtype=float),
            np.array(settings.workspace_max, dtype=float))
-    if box[0].shape != (3,) or not np.all(box[0] < box[1]):
+    for name, corner in zip(('workspace_min', 'workspace_max'), box):
+        if corner.shape != (3,):
+            raise ValueError(f'{name}: expected 3 values, got {corner.size}')
+    if not np.all(box[0] < box[1]):
         raise ValueError('workspace_min must be below workspace_max on every axis, got '
                          f'{list(settings.workspace_min)} and {list(settings.workspace_max)}')
     for name, vector in (('tool_com', settings.tool_com), ('gravity', settings.gravity)):

@@ -62,8 +62,9 @@ PARAMETERS = {
     'max_rotation_error': Spec(_GAINS.max_rotation_error, 'A target turned farther pulls as if '
                                'turned this far (rad).', low=0.001, high=math.pi),
     'table.centre': Spec(list(_TABLE.centre), "x, y of the table top's middle (m, arm base "
-                         'frame).'),
-    'table.half_sizes': Spec(list(_TABLE.half_sizes), 'Half the table top along x and y (m).'),
+                         'frame).', length=2),
+    'table.half_sizes': Spec(list(_TABLE.half_sizes), 'Half the table top along x and y (m).',
+                             length=2),
     'table.height': Spec(_TABLE.height, 'Height of the table top (m, arm base frame).'),
     'table.stiffness': Spec(_TABLE.stiffness, 'Stiffness of the spring under the table top (N/m).',
                             low=10.0, high=1e6),
@@ -71,9 +72,10 @@ PARAMETERS = {
                           low=0.0, high=1e4),
     'table.friction': Spec(_TABLE.friction, 'Friction coefficient of the table and the '
                            'fingertips (1).', low=0.0, high=2.0),
-    'force_bias': Spec(list(_SENSOR.force_bias), 'Constant bias added to the F/T force (N).'),
+    'force_bias': Spec(list(_SENSOR.force_bias), 'Constant bias added to the F/T force (N).',
+                       length=3),
     'torque_bias': Spec(list(_SENSOR.torque_bias), 'Constant bias added to the F/T moment '
-                        '(N*m).'),
+                        '(N*m).', length=3),
     'force_noise': Spec(_SENSOR.force_noise, 'Standard deviation of white noise on each force '
                         'axis (N).', low=0.0, high=100.0),
     'torque_noise': Spec(_SENSOR.torque_noise, 'Standard deviation of white noise on each '

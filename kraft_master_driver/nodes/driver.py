@@ -87,6 +87,8 @@ class KraftMasterNode(Node):
             # A stop signal during start-up: what was started is stopped as on any stop.
             self.stop()
             raise
+        if self.config['rate_command_enabled']:
+            self._say_rate_command_waits_for_centre()
         force = 'enabled' if self.force.enabled else 'disabled (call enable_force)'
         if self.device.link_up:
             self.get_logger().info(
@@ -207,6 +209,13 @@ class KraftMasterNode(Node):
             response.message = f'centre set at ({x:.4f}, {y:.4f}, {z:.4f}) m'
         return response
 
+    def _say_rate_command_waits_for_centre(self):
+        """Log, once rate_command is enabled without a centre, that it waits for set_center."""
+        if self.loop.centre is None:
+            self.get_logger().info(
+                'rate_command enabled: nothing is published until '
+                f"{self.resolve_service_name('set_center')} sets the centre")
+
     def _on_set_parameters(self, parameters):
         try:
             changes = run_time_changes(PARAMETERS, parameters)
@@ -225,6 +234,8 @@ class KraftMasterNode(Node):
             return SetParametersResult(successful=False, reason=str(error))
         if changes.get('rate_command_enabled'):
             self.topics.advertise_rate_command()  # before the loop sees it enabled
+            if not self.config['rate_command_enabled']:
+                self._say_rate_command_waits_for_centre()
         if 'passivity' in changes:
             self.master_port.enabled = changes['passivity']
         if 'passivity_damping' in changes:

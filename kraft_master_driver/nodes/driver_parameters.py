@@ -77,8 +77,9 @@ PARAMETERS = {
                             'reflected (N*s/m per N, i.e. s/m): none in free space; it keeps a '
                             'stiff contact reflected through a lagging arm still.',
                             read_only=False, low=0.0, high=100.0),
-    'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain); '
-                                 'the topic exists from the first time this is true.',
+    'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain) '
+                                 'once set_center has set the centre, nothing before; the '
+                                 'topic exists from the first time this is true.',
                                  read_only=False),
     'rate_gain': Spec([1.0, 1.0], 'Rate command gains: linear (1/s), angular (1/s).',
                       read_only=False, low=0.0, high=100.0, length=2),

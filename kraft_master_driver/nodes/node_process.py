@@ -13,7 +13,8 @@ However a node is asked to stop, it stops the same way and exits 0: SIGINT (Ctrl
 The first of these ends the spin; those that follow are ignored, so that a second Ctrl-C cannot
 cut short the node's own stop (the driver's zero-torque command, the closing of its port and of
 its simulator). A stop signal that came while the console script was still importing the node
-(nodes.commands) ends it before it starts anything.
+(nodes.commands) ends it before it starts anything. A shutdown stuck for SHUTDOWN_LIMIT_S, in
+C or in Python, ends with every thread's stack on stderr and exit 1.
 """
 import contextlib
 import faulthandler
@@ -34,6 +35,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.signals import install_signal_handlers, SignalHandlerOptions
 import rclpy.utilities
 
+# Seconds a node's shutdown may take before _guard_shutdown ends its process with exit 1.
 SHUTDOWN_LIMIT_S = 10.0
 # Seconds rclpy's signal thread may take to wake the executors and shut the contexts down.
 RCLPY_SIGNAL_WAIT_S = 5.0
@@ -77,7 +79,8 @@ def run_node(make_node, program, summary, table, args=None):
 
     --help prints the usage and returns 0 without starting anything; a bad params file, an
     argument that is not a ROS argument, or a bad parameter prints one line and returns 1. A
-    stop signal (see the module's docstring) returns 0, during start-up too.
+    stop signal (see the module's docstring) returns 0, during start-up too. A shutdown that
+    hangs ends the process with exit 1 (_guard_shutdown).
     """
     argv = sys.argv if args is None else args
     own = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
@@ -122,13 +125,13 @@ def run_node(make_node, program, summary, table, args=None):
         exit_code = 1
     finally:
         stop_request.received = True  # from here on, a signal changes nothing
-        watchdog = _exit_if_stuck(program, exit_code)
+        _guard_shutdown()
         if stop_request.seen_by_rclpy:
             _wait_for_rclpy_signal_thread()
         if node is not None:
-            node.destroy_node()
+            node.destroy_node()  # the driver's zeroes the torques and closes its port first
         try_shutdown()
-        watchdog.cancel()
+        faulthandler.cancel_dump_traceback_later()
         stop_request.ignore_from_now_on()
     return exit_code
 
@@ -226,15 +229,16 @@ def _wait_for_rclpy_signal_thread():
         time.sleep(0.001)
 
 
-def _exit_if_stuck(program, exit_code):
-    """Return a started timer that ends the process if its shutdown hangs (DDS teardown can)."""
-    def stuck():
-        print(f'{program}: shutdown did not finish in {SHUTDOWN_LIMIT_S:g} s; exiting; its '
-              'threads:', file=sys.stderr, flush=True)
-        faulthandler.dump_traceback(all_threads=True)  # where it hangs, for a bug report
-        sys.stdout.flush()
-        os._exit(exit_code)
-    timer = threading.Timer(SHUTDOWN_LIMIT_S, stuck)
-    timer.daemon = True
-    timer.start()
-    return timer
+def _guard_shutdown():
+    """
+    End the process with exit 1 if its shutdown outlasts SHUTDOWN_LIMIT_S, every stack dumped.
+
+    The guard is faulthandler's watchdog, a C thread that needs no interpreter lock: a call
+    stuck in C keeps that lock (Fast DDS's destroy_participant under destroy_node did, once in
+    about 30 stops), so a Python timer would never fire. At the limit it writes `Timeout
+    (0:00:10)!` and each thread's stack, the main thread's naming the stage that hangs, to
+    stderr, then calls _exit(1). Output still buffered in Python is lost then: flushed here.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)

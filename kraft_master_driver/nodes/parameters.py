@@ -9,7 +9,8 @@ integer wherever a floating-point value is expected (at start-up and at run time
 stays DOUBLE), and checks every value against its Spec. run_time_changes() checks a set at run
 time the same way, and refuses one of a parameter fixed at start-up. read_params_file() checks a
 params file as rcl would read it; usage() is a node's --help text. Every refusal is a
-ParameterError of one line; node_process.run_node() prints it and exits 1.
+ParameterError of one line; node_process.run_node() prints it and exits 1. launch_argument()
+checks a launch file's argument that gives a parameter its value, as the node would.
 """
 import difflib
 import math
@@ -42,7 +43,7 @@ class Spec(NamedTuple):
     low: float = None
     high: float = None
     choices: tuple = ()
-    length: int = None
+    length: object = None  # of a list value: a number, or a tuple of the numbers allowed
 
 
 class ParameterError(ValueError):
@@ -66,8 +67,10 @@ def descriptor(name, spec):
     if spec.choices:
         result.additional_constraints = 'one of: ' + ', '.join(spec.choices)
     if spec.length:
-        result.additional_constraints = (
-            f'{spec.length} values, each within {_number(spec.low)}..{_number(spec.high)}')
+        result.additional_constraints = f'{_lengths_text(spec)} values'
+        if spec.low is not None:
+            result.additional_constraints += (
+                f', each within {_number(spec.low)}..{_number(spec.high)}')
     elif spec.low is not None and isinstance(spec.default, int):
         result.integer_range = [IntegerRange(
             from_value=int(spec.low), to_value=int(spec.high), step=1)]
@@ -75,6 +78,16 @@ def descriptor(name, spec):
         result.floating_point_range = [FloatingPointRange(
             from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
     return result
+
+
+def _lengths(spec):
+    """Return the lengths a list parameter may have."""
+    return spec.length if isinstance(spec.length, tuple) else (spec.length,)
+
+
+def _lengths_text(spec):
+    """Return the lengths a list parameter may have as text: 3, or 3 or 4."""
+    return ' or '.join(map(str, _lengths(spec)))
 
 
 def _number(value):
@@ -92,15 +105,35 @@ def check_value(table, name, value):
             f'parameter {name}: {value!r} is not one of {", ".join(spec.choices)}')
     if spec.length is not None:
         values = list(value)
-        if len(values) != spec.length:
+        if len(values) not in _lengths(spec):
             raise ParameterError(
-                f'parameter {name}: expected {spec.length} values, got {len(values)}')
-        for item in values:
-            _check_range(name, spec, item)
+                f'parameter {name}: expected {_lengths_text(spec)} values, got {len(values)}')
+        if spec.low is not None:
+            for item in values:
+                _check_range(name, spec, item)
         return values
     if spec.low is not None:
         _check_range(name, spec, value)
     return value
+
+
+def launch_argument(table, name, text):
+    """
+    Return launch argument `name`:=`text` as the number parameter `name` of `table` takes it.
+
+    A text that is not such a number, or a value check_value() refuses, raises ParameterError
+    of one line naming the argument: `contact_damping:=-1: -1.0 is outside 0..100`.
+    """
+    kind = type(table[name].default)
+    try:
+        value = kind(text)
+    except ValueError:
+        raise ParameterError(f'{name}:={text}: expected {_KIND_NAMES[kind]}') from None
+    try:
+        return check_value(table, name, value)
+    except ParameterError as error:
+        reason = str(error).removeprefix(f'parameter {name}: ')
+        raise ParameterError(f'{name}:={text}: {reason}') from None
 
 
 def _check_range(name, spec, value):
@@ -136,7 +169,8 @@ def _check_type(name, spec, parameter):
             type(item) is kind for item in values):
         expected = _KIND_NAMES[kind]
         if isinstance(spec.default, list):
-            expected = f'a list of {len(spec.default)} ({expected})'
+            count = f' of {_lengths_text(spec)}' if spec.length else ''
+            expected = f'a list{count} ({expected})'
         raise ParameterError(f'parameter {name}: expected {expected}, got {value!r}')
 
 

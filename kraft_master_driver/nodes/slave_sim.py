@@ -44,7 +44,7 @@ PARAMETERS = {
                  'velocity.', choices=MODES),
     'rate_hz': Spec(500.0, 'Simulation and publishing rate (Hz).'),
     'start_position': Spec([0.0, 0.0, 0.0], 'Where the tool starts, at rest (m, arm_frame); '
-                           'on the wall if behind it.'),
+                           'on the wall if behind it.', length=3),
     'command_timeout': Spec(0.1, 'An older command makes the arm hold still (s).'),
     'max_velocity': Spec(_DEFAULT_LIMITS.max_velocity, 'Arm speed limit (m/s).'),
     'max_acceleration': Spec(_DEFAULT_LIMITS.max_acceleration, 'Arm servo acceleration '
@@ -52,12 +52,14 @@ PARAMETERS = {
     'mass': Spec(_DEFAULT_LIMITS.mass, 'Moving mass of the arm (kg).'),
     'position_gain': Spec(_DEFAULT_LIMITS.position_gain, 'Position loop gain (1/s).'),
     'velocity_gain': Spec(_DEFAULT_LIMITS.velocity_gain, 'Velocity loop gain (1/s).'),
-    'wall.point': Spec([0.0, 0.0, -0.04], 'A point of the wall plane (m), arm_frame.'),
-    'wall.normal': Spec([0.0, 0.0, 1.0], 'Wall normal, pointing into free space.'),
+    'wall.point': Spec([0.0, 0.0, -0.04], 'A point of the wall plane (m), arm_frame.',
+                       length=3),
+    'wall.normal': Spec([0.0, 0.0, 1.0], 'Wall normal, pointing into free space.', length=3),
     'wall.stiffness': Spec(20000.0, 'Wall stiffness (N/m); 0 removes the wall.'),
     'wall.damping': Spec(100.0, 'Wall damping (N*s/m).'),
-    'box.centre': Spec([0.0, 0.12, 0.0], 'Centre of the soft box (m), arm_frame.'),
-    'box.half_sizes': Spec([0.1, 0.06, 0.04], 'Half sizes of the soft box along x, y, z (m).'),
+    'box.centre': Spec([0.0, 0.12, 0.0], 'Centre of the soft box (m), arm_frame.', length=3),
+    'box.half_sizes': Spec([0.1, 0.06, 0.04], 'Half sizes of the soft box along x, y, z (m).',
+                           length=3),
     'box.stiffness': Spec(200.0, 'Soft box stiffness (N/m); 0 removes the box.'),
     'box.damping': Spec(20.0, 'Soft box damping (N*s/m).'),
     'arm_frame': Spec(_BRIDGE.arm_frame, 'frame_id of servo_cp, servo_cv and measured_cp: the '

@@ -41,12 +41,14 @@ PARAMETERS = {
                             'rotation); a change registers anew.', choices=ORIENTATIONS),
     'base_rotation': _tunable('base_rotation', "Rotation of the master's base frame in the "
                               "arm's base frame: roll, pitch, yaw (rad) or a quaternion x, y, "
-                              'z, w; a change registers anew and ramps the wrench.'),
+                              'z, w; a change registers anew and ramps the wrench.',
+                              length=(3, 4)),
     'base_rotation_from_tf': Spec(False, 'At each enable, take base_rotation from TF: the '
                                   'rotation of master_frame in arm_frame (needs tf2_ros). '
                                   'Fixed: the TF listener is created at start-up.'),
     'sensor_rotation': _tunable('sensor_rotation', "Rotation of the F/T sensor's frame in the "
-                                'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.'),
+                                'frame of measured_cp: roll, pitch, yaw (rad) or x, y, z, w.',
+                                length=(3, 4)),
     'master_frame': _spec('master_frame', "frame_id of pose and wrench: the driver's "
                           "base_frame. Fixed: the wrench's header is laid out once."),
     'arm_frame': _spec('arm_frame', 'frame_id of measured_cp, servo_cp and servo_cv: the '
@@ -54,8 +56,8 @@ PARAMETERS = {
     'ft_frame': _spec('ft_frame', 'frame_id of measured_cf: the F/T sensor frame. Fixed, as '
                       'the other frames: a frame is wiring, not a tuning.'),
     'workspace_min': _tunable('workspace_min', "Lower corner of the box the arm's target "
-                              'stays in (m, arm base frame).'),
-    'workspace_max': _tunable('workspace_max', 'Upper corner of that box (m).'),
+                              'stays in (m, arm base frame).', length=3),
+    'workspace_max': _tunable('workspace_max', 'Upper corner of that box (m).', length=3),
     'max_linear_speed': _tunable('max_linear_speed', "Speed limit of the arm's target (m/s).",
                                  low=0.001, high=10.0),
     'max_angular_speed': _tunable('max_angular_speed', "Angular speed limit of the arm's "
@@ -76,8 +78,9 @@ PARAMETERS = {
                                'no F/T sensor, zero wrench.'),
     'tool_mass': _tunable('tool_mass', 'Mass of the tool beyond the sensor (kg).',
                           low=0.0, high=100.0),
-    'tool_com': _tunable('tool_com', "The tool's centre of mass (m, sensor frame)."),
-    'gravity': _tunable('gravity', 'Gravity (m/s^2, arm base frame).'),
+    'tool_com': _tunable('tool_com', "The tool's centre of mass (m, sensor frame).",
+                         length=3),
+    'gravity': _tunable('gravity', 'Gravity (m/s^2, arm base frame).', length=3),
     'force_scale': _tunable('force_scale', 'Master force per arm force (1).',
                             low=0.0, high=100.0),
     'moment_scale': _tunable('moment_scale', 'Master moment per arm moment (1).',

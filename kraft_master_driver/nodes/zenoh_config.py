@@ -10,7 +10,9 @@ TLS, with mutual authentication against one root CA, no multicast scouting and n
 meets only the endpoints given), a bounded back-off between connection attempts and bounded
 pending handshakes. Access control lets only the peer whose certificate bears the expected
 common name put the streams this side receives and subscribe to those it sends; nothing else.
-Every refusal is a ValueError of one line. PoseGate is the arm's rule for the master's poses.
+Every refusal is a ValueError of one line. PoseGate is the arm's rule for the master's poses;
+PeerBook names each peer that comes, by its certificate, and says which access control shuts
+out.
 """
 import os
 import re
@@ -202,3 +204,53 @@ class PoseGate:
                 and now - self._last_pose > self.timeout):
             self._reason = f'no pose for more than stream_timeout {self.timeout:g} s'
             self._last_pose = None
+
+
+class PeerBook:
+    """
+    The peers connected to this site, told apart by the common name of their certificates.
+
+    Zenoh tells each link's remote id, address and authentication identifier (with TLS, the
+    common name of the certificate the peer showed, which the root CA signed). A peer whose name
+    is not `expected` has a session, yet access control lets it put and subscribe nothing: it
+    is shut out, and said so, not counted as authenticated.
+    """
+
+    def __init__(self, expected):
+        """Start with no peer; `expected` is tls.peer_common_name."""
+        self.expected = expected
+        self._peers = {}  # remote id -> (address, certificate name)
+
+    @property
+    def authenticated(self):
+        """Return how many peers bearing the expected name are connected."""
+        return sum(name == self.expected for _, name in self._peers.values())
+
+    def update(self, links):
+        """
+        Take the links now open, as (remote id, address, certificate name or None).
+
+        Return a (warning, line) for each peer come or gone since the last update, warning
+        True for a peer shut out.
+        """
+        now = {}
+        for peer, address, name in links:
+            now.setdefault(peer, (address, name))
+        changes = []
+        for peer, (address, name) in now.items():
+            if peer not in self._peers:
+                changes.append(self._came(address, name))
+        for peer, (address, name) in self._peers.items():
+            if peer not in now:
+                who = 'authenticated peer' if name == self.expected else 'shut-out peer'
+                changes.append((False, f'{who} {name} ({address}) gone'))
+        self._peers = now
+        return changes
+
+    def _came(self, address, name):
+        if name == self.expected:
+            return False, f'authenticated peer {name} connected ({address})'
+        shown = 'no certificate name' if name is None else f'a certificate for {name}'
+        return True, (f'peer {address} shut out: it shows {shown}, not for {self.expected} '
+                      '(tls.peer_common_name); access control lets it put and subscribe '
+                      'nothing')

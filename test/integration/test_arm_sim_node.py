@@ -259,7 +259,7 @@ def test_a_command_in_another_frame_is_refused_in_one_line(install_prefix):
 @pytest.mark.parametrize('name, value, fragment', [
     ('table.height', '-1.0', 'table.height must be within'),
     ('translational_stiffness', '0.0', 'translational_stiffness'),
-    ('force_bias', '[1.0, 2.0]', 'force_bias must be 3 finite numbers'),
+    ('force_bias', '[1.0, 2.0]', 'parameter force_bias: expected 3 values, got 2'),
 ])
 def test_a_bad_parameter_exits_1_naming_it(install_prefix, name, value, fragment):
     process = DriverProcess(install_prefix, next_domain_id(), [(name, value)],

@@ -396,3 +396,37 @@ def test_the_docs_param_set_commands_name_a_launched_node_and_a_settable_paramet
         assert not namespace or node in launched, f'no launch file starts {node}'
         spec = PARAMETER_TABLES[executable].get(name)
         assert spec is not None and not spec.read_only, f'{node} {name} is not settable'
+
+
+@pytest.mark.parametrize('file_name', ['kraft_master.launch.py', 'teleop.launch.py'])
+@pytest.mark.parametrize('value, reason', [('-1', '-1.0 is outside 0..100'),
+                                           ('abc', 'expected a number')])
+def test_a_bad_contact_damping_stops_the_launch_before_any_process(installed_share, file_name,
+                                                                   value, reason):
+    with pytest.raises(RuntimeError) as raised:
+        launch_from_command_line(file_name, 'right_port:=sim', f'contact_damping:={value}')
+    assert raised.type.__name__ == 'LaunchCheckError'
+    assert str(raised.value) == f'contact_damping:={value}: {reason}'
+
+
+class Exited:
+    """What the launch tells a process's on_exit: its name and exit code."""
+
+    def __init__(self, process_name, returncode):
+        """Keep both."""
+        self.process_name, self.returncode = process_name, returncode
+
+
+@pytest.mark.parametrize('file_name', ['kraft_master.launch.py', 'teleop.launch.py'])
+def test_a_node_that_fails_ends_the_launch_with_exit_1(installed_share, file_name):
+    # ros2 launch exits 1 on an exception in an event handler, and stops every process.
+    context, started = launch_from_command_line(file_name, 'arms:=both', 'right_port:=sim',
+                                                'left_port:=sim')
+    assert started
+    for process in started:
+        on_exit = process._ExecuteProcess__on_exit
+        assert on_exit.__name__ == 'end_launch_if_failed', process.node_executable
+        assert on_exit(Exited('kraft_master_node-1', 0), context) is None
+        with pytest.raises(RuntimeError, match=r'^kraft_master_node-1 exited with code 1; '
+                                               'the launch stops$'):
+            on_exit(Exited('kraft_master_node-1', 1), context)

@@ -20,6 +20,7 @@ from harness import dds_shm
 from harness.driver import (AT_A_TERMINAL, DriverProcess, executable, installed_env,
                             next_domain_id, RosClient, wait_for, WAIT_S)
 from harness.reaper import descendants
+from kraft_master_driver.nodes import node_process
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import pytest
 
@@ -36,6 +37,32 @@ ENDINGS = {
     'SIGTERM then SIGINT': [signal.SIGTERM, signal.SIGINT],
 }
 PR_SET_CHILD_SUBREAPER = 36  # linux/prctl.h
+# Runs the console script given first with its node teardown made to hang in C, the interpreter
+# lock held, as Fast DDS's destroy_participant did under destroy_node: only a guard that needs
+# no lock can end it. It prints the files open when the hang begins.
+HANGING_TEARDOWN = """
+import ctypes, os, runpy, sys
+import rclpy.node
+
+def hang(node):
+    fds = os.listdir('/proc/self/fd')
+    print('open at the hang:', *(os.path.realpath(f'/proc/self/fd/{fd}') for fd in fds),
+          flush=True)
+    ctypes.PyDLL(None).sleep(3600)  # a PyDLL call keeps the interpreter lock
+
+rclpy.node.Node.destroy_node = hang
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name='__main__')
+"""
+# run_node refusing a stray argument, with the guard's limit shortened, then living on past it.
+REFUSAL_THEN_LIFE = """
+import sys, time
+from kraft_master_driver.nodes import node_process
+node_process.SHUTDOWN_LIMIT_S = 0.2
+code = node_process.run_node(None, 'probe', '', {}, ['probe', 'stray'])
+time.sleep(2.0)
+print('returned', code)
+"""
 
 # A parent that starts the command it is given, says its process id, and waits: as a launch or
 # `ros2 run` does. Its output goes to the file named first.
@@ -245,3 +272,37 @@ def test_a_dead_parent_takes_the_builtin_simulator_with_it(install_prefix, tmp_p
         assert not os.path.exists(directory), f'{directory} was left behind'
     finally:
         orphaning.close()
+
+
+def test_a_teardown_stuck_in_c_is_ended_by_the_guard_after_zero_torque(install_prefix):
+    running = Running(install_prefix, start_driver=False)
+    running.driver = DriverProcess(install_prefix, running.domain_id, running.parameters,
+                                   wrapper=(sys.executable, '-c', HANGING_TEARDOWN))
+    try:
+        running.command_torque()
+        groups = dds_shm.held_by(running.driver.process.pid)
+        started = time.monotonic()
+        code, output = running.driver.interrupt(signal.SIGINT)
+        took = time.monotonic() - started
+        dds_shm.remove(dds_shm.orphaned(groups))  # the participant never tore down
+        assert code == 1, output
+        assert took >= node_process.SHUTDOWN_LIMIT_S, output
+        hang = output.index('open at the hang:')
+        assert os.path.realpath(running.simulator.port) not in output[hang:].split('\n')[0], \
+            'the port must be closed before the teardown'
+        timeout = output.index(f'Timeout (0:00:{node_process.SHUTDOWN_LIMIT_S:02.0f})!')
+        assert hang < timeout, output
+        stack = output[timeout:]
+        assert ' in hang\n' in stack and 'driver.py", line' in stack, stack
+        wait_for(lambda: not any(running.last_command()), timeout=WAIT_S)
+    finally:
+        running.close()
+
+
+def test_the_guard_is_cancelled_when_the_process_has_stopped():
+    result = subprocess.run([sys.executable, '-c', REFUSAL_THEN_LIFE], capture_output=True,
+                            text=True, timeout=WAIT_S)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == 'returned 1\n'
+    assert result.stderr.startswith("probe: unexpected argument 'stray'"), result.stderr
+    assert result.stderr.count('\n') == 1, result.stderr

@@ -381,6 +381,9 @@ def test_twist_mode_drives_toward_the_target_and_stops_when_clutched(start_bridg
     ('base_rotation', '[0.0, 1.0]', 'base_rotation'),
     ('scael', '2.0', 'did you mean scale?'),
     ('workspace_min', '[3.0, 0.0, 0.0]', 'workspace_min'),
+    ('workspace_max', '[5.0, 5.0]', 'parameter workspace_max: expected 3 values, got 2'),
+    ('workspace_max', '[5.0]', 'parameter workspace_max: expected 3 values, got 1'),
+    ('workspace_min', '[-1.0, -1.0]', 'parameter workspace_min: expected 3 values, got 2'),
 ])
 def test_a_bad_parameter_exits_1_naming_it(install_prefix, name, value, fragment):
     process = DriverProcess(install_prefix, next_domain_id(), [(name, value)],
@@ -564,6 +567,7 @@ def call_parameters(rig, future):
     ('orientation', 'loose', "parameter orientation: 'loose' is not one of follow, fixed, "
      'ignore'),
     ('mode', 'twist', 'Trying to set a read-only parameter: mode.'),
+    ('workspace_max', [5.0, 5.0], 'parameter workspace_max: expected 3 values, got 2'),
 ])
 def test_a_refused_set_changes_nothing(following, name, value, reason):
     rig, parameters = following

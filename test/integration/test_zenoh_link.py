@@ -220,7 +220,7 @@ def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enabl
     glide(simulator, actuator_target(0.0), actuator_target(0.01), 0.5)
     restore = time.monotonic()
     start_master_link(master, sites)
-    wait_for(lambda: arm_link.saw('1 authenticated peer', lines))
+    wait_for(lambda: arm_link.saw('authenticated peer master connected', lines))
     glide(simulator, actuator_target(0.01), actuator_target(0.02), 0.5)
     enable = time.monotonic()
     # The operator enables the bridge, again until the poses that crossed are fresh there.
@@ -279,6 +279,10 @@ def test_a_peer_without_a_signed_certificate_gets_nothing_and_moves_nothing(
     assert [r['peers'] for r in refused] == [0, 0, 1]
     # The listening link said, in its one rate-limited line, that no peer had come.
     assert link.saw(f'no authenticated peer listening on {endpoint}')
+    # The one the CA signed for another site is named, and said to be shut out.
+    assert link.saw(f'shut out: it shows a certificate for other-site, not for {posing_as} '
+                    '(tls.peer_common_name)')
+    assert link.saw(f'authenticated peer {posing_as} connected'), '\n'.join(link.lines)
     assert not np.any(between(efforts['joint_states'], 0.0, refused_until))
     assert len(between(seen['servo_cp'], 0.0, refused_until)) == 0
     assert signed == {'received': signed['received'], 'peers': 1} and signed['received'] > 0
@@ -363,7 +367,7 @@ def test_a_blip_the_session_does_not_notice_disables_the_bridge(islands, sites, 
     finally:
         master_link.process.send_signal(signal.SIGCONT)
     assert_the_arm_holds_while_the_master_moves(arm, simulator, commands, time.monotonic())
-    assert not arm_link.saw('0 authenticated peer', lines)
+    assert not arm_link.saw('authenticated peer master (', lines)  # ... gone
 
 
 @pytest.mark.slow

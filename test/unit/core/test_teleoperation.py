@@ -675,6 +675,8 @@ def test_force_feedback_turned_off_fades_the_wrench_out_at_the_ticks():
 
 @pytest.mark.parametrize('change, fragment', [
     ({'workspace_min': (0.0, 0.0, 3.0)}, 'workspace_min must be below workspace_max'),
+    ({'workspace_max': (5.0, 5.0)}, 'workspace_max: expected 3 values, got 2'),
+    ({'workspace_min': (-1.0,)}, 'workspace_min: expected 3 values, got 1'),
     ({'base_rotation': (0.0, 0.0, 0.0, 2.0)}, 'base_rotation: the quaternion'),
     ({'orientation': 'loose'}, 'orientation must be one of'),
     ({'tool_com': (0.0, math.nan, 0.0)}, 'tool_com must be 3 finite numbers')])

@@ -5,11 +5,12 @@ Tests of the parameter machinery: specs, types, ranges, choices, misspelt names,
 
 Nodes are real rclpy nodes in a context of this process, on a DDS domain of their own.
 """
+import importlib
 import itertools
 
 from kraft_master_driver.nodes.parameters import (
-    check_value, coerce_integers, declare_parameters, descriptor, ParameterError,
-    read_params_file, reject_unknown, run_time_changes, Spec, usage)
+    check_value, coerce_integers, declare_parameters, descriptor, launch_argument,
+    ParameterError, read_params_file, reject_unknown, run_time_changes, Spec, usage)
 import pytest
 from rcl_interfaces.msg import ParameterType
 import rclpy
@@ -27,7 +28,14 @@ TABLE = {
                     high=2.0, length=4),
     'limits': Spec([100, 200], 'Limits (counts).', low=1, high=32767, length=2),
     'frame_prefix': Spec('', 'Prefix of the frames.'),
+    'rotation': Spec([0.0, 0.0, 0.0], 'Roll, pitch, yaw or x, y, z, w.', read_only=False,
+                     length=(3, 4)),
+    'corner': Spec([2.0, 2.0, 2.0], 'Corner of a box (m).', read_only=False, length=3),
 }
+# Every node's parameters; of their list parameters, these alone take any number of values.
+NODE_TABLES = ('driver_parameters', 'teleop_parameters', 'arm_sim', 'slave_sim', 'link_emulator',
+               'zenoh_link')
+ANY_LENGTH = {'to_slave.topics', 'to_master.topics'}
 _node_numbers = itertools.count()
 
 
@@ -87,6 +95,10 @@ def test_a_value_in_range_is_returned():
     ('lengths', [0.1, 0.2, 3.0, 0.4], 'parameter lengths: 3.0 is outside 0.001..2'),
     ('limits', [0, 200], 'parameter limits: 0 is outside 1..32767'),
     ('port', None, 'parameter port: no value (an empty list has no type)'),
+    ('corner', [5.0, 5.0], 'parameter corner: expected 3 values, got 2'),
+    ('corner', [5.0], 'parameter corner: expected 3 values, got 1'),
+    ('rotation', [0.0, 1.0], 'parameter rotation: expected 3 or 4 values, got 2'),
+    ('rotation', [0.0] * 5, 'parameter rotation: expected 3 or 4 values, got 5'),
 ])
 def test_a_value_out_of_its_spec_is_refused_in_one_line_naming_it(name, value, message):
     assert refusal(check_value, TABLE, name, value) == message
@@ -94,6 +106,20 @@ def test_a_value_out_of_its_spec_is_refused_in_one_line_naming_it(name, value, m
 
 def test_a_list_value_comes_back_as_a_list():
     assert check_value(TABLE, 'lengths', (0.1, 0.2, 0.3, 0.4)) == [0.1, 0.2, 0.3, 0.4]
+    assert check_value(TABLE, 'rotation', [0.0, 0.0, 0.0, 1.0]) == [0.0, 0.0, 0.0, 1.0]
+    assert check_value(TABLE, 'corner', [-1.0, 0.0, 1e9]) == [-1.0, 0.0, 1e9]
+
+
+@pytest.mark.parametrize('module', NODE_TABLES)
+def test_every_list_parameter_of_every_node_has_its_length_checked(module):
+    table = importlib.import_module(f'kraft_master_driver.nodes.{module}').PARAMETERS
+    for name, spec in table.items():
+        if isinstance(spec.default, list) and name not in ANY_LENGTH:
+            assert spec.length, f'{module}: {name} has no length'
+            assert check_value(table, name, spec.default) == spec.default
+            short = spec.default[:-1]
+            assert refusal(check_value, table, name, short).startswith(
+                f'parameter {name}: expected '), name
 
 
 def test_a_run_time_set_is_checked_as_at_start_up_and_refused_if_read_only():
@@ -105,6 +131,8 @@ def test_a_run_time_set_is_checked_as_at_start_up_and_refused_if_read_only():
     assert refusal(run_time_changes, TABLE, [Parameter('rate_hz', value=500.0),
                                              Parameter('baud', value=9600)]) == (
         'parameter baud is read-only')
+    assert refusal(run_time_changes, TABLE, [Parameter('corner', value=[5.0, 5.0])]) == (
+        'parameter corner: expected 3 values, got 2')
 
 
 def test_integers_become_doubles_only_for_floating_point_parameters():
@@ -132,6 +160,23 @@ def test_the_descriptor_carries_the_range_the_choices_and_read_only():
     assert descriptor('arm', TABLE['arm']).additional_constraints == 'one of: right, left'
     assert descriptor('lengths', TABLE['lengths']).additional_constraints == (
         '4 values, each within 0.001..2')
+    assert descriptor('rotation', TABLE['rotation']).additional_constraints == '3 or 4 values'
+
+
+@pytest.mark.parametrize('name, text, message', [
+    ('rate_hz', '-1', 'rate_hz:=-1: -1.0 is outside 1..5000'),
+    ('rate_hz', 'abc', 'rate_hz:=abc: expected a number'),
+    ('rate_hz', 'nan', 'rate_hz:=nan: nan is outside 1..5000'),
+    ('rate_hz', '', 'rate_hz:=: expected a number'),
+    ('baud', '9600.5', 'baud:=9600.5: expected an integer'),
+])
+def test_a_bad_launch_argument_is_refused_in_one_line_naming_it(name, text, message):
+    assert refusal(launch_argument, TABLE, name, text) == message
+
+
+def test_a_launch_argument_is_taken_as_its_parameter():
+    assert launch_argument(TABLE, 'rate_hz', '250') == 250.0
+    assert launch_argument(TABLE, 'baud', '9600') == 9600
 
 
 # -- a node's parameters -----------------------------------------------------------------------
@@ -180,6 +225,8 @@ def test_integers_are_taken_for_doubles_at_start_up_and_at_run_time(make_node):
     ({'baud': 100}, 'parameter baud: 100 is outside 1200..12000000'),
     ({'arm': 'middle'}, "parameter arm: 'middle' is not one of right, left"),
     ({'lengths': [0.1, 0.2]}, 'parameter lengths: expected 4 values, got 2'),
+    ({'corner': [5.0, 5.0]}, 'parameter corner: expected 3 values, got 2'),
+    ({'corner': 5.0}, 'parameter corner: expected a list of 3 (a number), got 5.0'),
 ])
 def test_a_bad_given_value_is_refused_in_one_line_naming_it(make_node, overrides, message):
     assert refusal(declare_parameters, make_node(**overrides), TABLE) == message

@@ -156,3 +156,27 @@ def test_a_lapsed_stream_shuts_the_gate_before_its_next_pose():
     assert gate.reason(1.04) is None
     assert gate.reason(1.06) == 'no pose for more than stream_timeout 0.05 s'
     assert not gate.admit(1.07)
+
+
+def test_the_peer_book_names_each_peer_and_counts_only_the_expected_one():
+    book = zenoh_config.PeerBook('arm')
+    assert book.update([('a1', 'tls/10.0.0.2:4001', 'arm'), ('a1', 'tls/10.0.0.2:4002', 'arm')]) \
+        == [(False, 'authenticated peer arm connected (tls/10.0.0.2:4001)')]
+    assert book.authenticated == 1
+    assert book.update([('a1', 'tls/10.0.0.2:4001', 'arm')]) == []
+    assert book.update([('a1', 'tls/10.0.0.2:4001', 'arm'),
+                        ('o1', 'tls/10.0.0.9:5000', 'other-site')]) == [
+        (True, 'peer tls/10.0.0.9:5000 shut out: it shows a certificate for other-site, not for '
+               'arm (tls.peer_common_name); access control lets it put and subscribe nothing')]
+    assert book.authenticated == 1
+    assert book.update([]) == [(False, 'authenticated peer arm (tls/10.0.0.2:4001) gone'),
+                               (False, 'shut-out peer other-site (tls/10.0.0.9:5000) gone')]
+    assert book.authenticated == 0
+
+
+def test_a_peer_without_a_certificate_name_is_shut_out():
+    book = zenoh_config.PeerBook('master')
+    ((warning, line),) = book.update([('x', 'tls/10.0.0.1:7447', None)])
+    assert warning and line.startswith('peer tls/10.0.0.1:7447 shut out: it shows no '
+                                       'certificate name, not for master')
+    assert book.authenticated == 0
