@@ -471,13 +471,16 @@ CODECS: dict[str, Callable[[], Codec]] = {
     for name in builtin_names()}
 
 
-def get_codec(name: str) -> Codec:
+def get_codec(name: 'str | Codec') -> Codec:
     """
-    Return a new codec: a name in CODECS, or the path of a frame description file.
+    Return a new codec: a name in CODECS, or the path of a frame description file (a Codec given
+    is returned as it is).
 
     ValueError if the name is unknown; FrameDescriptionError (a ValueError of one line naming
     the file, the key and the fault) if the file cannot be read or cannot work.
     """
+    if isinstance(name, Codec):
+        return name
     if isinstance(name, str) and name in CODECS:
         return CODECS[name]()
     if isinstance(name, str) and (name.endswith(('.yaml', '.yml')) or os.sep in name):
