@@ -142,13 +142,14 @@ class _Reader:
     def mapping(self, value: Any, key: str, known: tuple[str, ...],
                 required: tuple[str, ...] = ()) -> dict[str, Any]:
         if not isinstance(value, dict):
-            raise self.fail(key, f'must be a mapping, got {value!r}')
+            raise self.fail(key or 'top level', f'must be a mapping, got {value!r}')
+        prefix = f'{key}.' if key else ''
         for name in value:
             if name not in known:
-                raise self.fail(f'{key}.{name}', f'unknown key; known: {", ".join(known)}')
+                raise self.fail(f'{prefix}{name}', f'unknown key; known: {", ".join(known)}')
         for name in required:
             if name not in value:
-                raise self.fail(f'{key}.{name}', 'missing')
+                raise self.fail(f'{prefix}{name}', 'missing')
         return value
 
     def integer(self, value: Any, key: str, low: int, high: int) -> int:
@@ -173,7 +174,7 @@ class _Reader:
         return value
 
     def description(self, document: Any) -> FrameDescription:
-        top = self.mapping(document, 'top level', _TOP_KEYS, _TOP_KEYS[:1] + _TOP_KEYS[2:])
+        top = self.mapping(document, '', _TOP_KEYS, _TOP_KEYS[:1] + _TOP_KEYS[2:])
         if not isinstance(top['name'], str) or not top['name']:
             raise self.fail('name', f'must be a non-empty string, got {top["name"]!r}')
         pots = self.mapping(top['pots'], 'pots', ('bits', 'range'), ('bits',))
