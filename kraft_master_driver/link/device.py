@@ -76,8 +76,8 @@ class KmcDevice:
         protocol.CODECS or the path of a frame description. reply_timeout: seconds to wait for
         each reply. torque_scale: five positive command counts per N*m (axes 1..5; None: the
         codec's). torque_limit: five limits in counts (1 to the largest count the frame holds;
-        None: the codec's). low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is a
-        warning in last_error, not an error). reconnect_min, reconnect_max: backoff bounds
+        None: the codec's). low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is
+        a warning in last_error, not an error). reconnect_min, reconnect_max: backoff bounds
         (seconds). timeouts_before_reconnect: consecutive timeouts after which the link is
         treated as dead and reopened.
         """

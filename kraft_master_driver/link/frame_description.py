@@ -14,7 +14,7 @@ from typing import Any
 
 from kraft_master_driver.core.calibration import POT_COUNT, yaml_fault
 from kraft_master_driver.link.checksums import (
-    Checksum, CHECKSUM_TYPES, CRC_TYPES, make_crc, SUMS, SUM_TYPES)
+    Checksum, CHECKSUM_TYPES, CRC_TYPES, make_crc, SUM_TYPES, SUMS)
 import yaml
 
 AXIS_COUNT = 5
@@ -69,7 +69,7 @@ class Field:
 class ChecksumField:
     """The check value: its field, its function and the bytes [start, end) it covers."""
 
-    type: str
+    type: str  # noqa: A003 - the key's name in the file
     field: Field
     function: Checksum
     start: int
@@ -240,7 +240,7 @@ class _Reader:
             if field is not None]
         for start, end, name in spans:
             if end > size:
-                raise self.fail(name, f'bytes {start}..{end - 1} past the frame\'s end '
+                raise self.fail(name, f"bytes {start}..{end - 1} past the frame's end "
                                       f'({key}.size {size})')
         spans.sort()
         for (_, end, name), (start, _, next_name) in zip(spans, spans[1:]):

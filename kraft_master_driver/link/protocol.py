@@ -473,8 +473,9 @@ CODECS: dict[str, Callable[[], Codec]] = {
 
 def get_codec(name: 'str | Codec') -> Codec:
     """
-    Return a new codec: a name in CODECS, or the path of a frame description file (a Codec given
-    is returned as it is).
+    Return a new codec: a name in CODECS, or the path of a frame description file.
+
+    A Codec given is returned as it is.
 
     ValueError if the name is unknown; FrameDescriptionError (a ValueError of one line naming
     the file, the key and the fault) if the file cannot be read or cannot work.

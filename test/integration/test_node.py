@@ -302,9 +302,10 @@ def test_bad_frame_description_exits_1_in_one_line_naming_it(install_prefix, tmp
     frame = tmp_path / 'bad_frame.yaml'
     frame.write_text((pathlib.Path(frame_description.builtin_path('kraft-default')).read_text()
                       .replace('crc16', 'crc32', 1)))
-    for codec, line in ((frame, f'parameter codec: frame description {frame}: command.checksum.'
-                                 "type: unknown checksum 'crc32'"),
-                        ('kmc-real', "parameter codec: unknown codec 'kmc-real'")):
+    refusals = ((frame, f'parameter codec: frame description {frame}: command.checksum.type: '
+                        "unknown checksum 'crc32'"),
+                ('kmc-real', "parameter codec: unknown codec 'kmc-real'"))
+    for codec, line in refusals:
         driver = DriverProcess(install_prefix, next_domain_id(), [('codec', str(codec))])
         code, output = driver.wait_exit()
         assert code == 1, output

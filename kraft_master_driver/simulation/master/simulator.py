@@ -60,7 +60,8 @@ class SimulatedKraftMaster:
         calibration is the device's true calibration (default: the arm's nominal one);
         codec is the frame it speaks, a name in protocol.CODECS or the path of a frame
         description; torque_scale is in command counts per N*m, torque_limit in counts (larger
-        commands are clamped, status bit1), both by default the codec's; baudrate None means no wire timing; command_timeout (s)
+        commands are clamped, status bit1), both by default the codec's; baudrate None means
+        no wire timing; command_timeout (s)
         is the watchdog; operator_period (s) is the sweep time per joint or the mean
         segment of the random walk; `record` is the length of the `received` deque;
         priority (1-99) runs the serving thread SCHED_FIFO, answering as promptly as the
