@@ -12,7 +12,7 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'benchmarks']),
     # PEP 561: type checkers use the package's own type hints.
-    package_data={package_name: ['py.typed']},
+    package_data={package_name: ['py.typed'], package_name + '.link': ['frames/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -17,8 +17,8 @@ import time
 from typing import NamedTuple, Self
 
 from kraft_master_driver.link.protocol import (
-    AXIS_COUNT, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, INT16_MAX, PotFrame,
-    STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
+    AXIS_COUNT, DEFAULT_CODEC, get_codec, PotFrame, STATUS_COMMAND_TIMEOUT,
+    STATUS_CORRUPT_COMMAND)
 import serial
 
 SEQUENCE_MODULO = 256
@@ -63,20 +63,21 @@ class CycleResult(NamedTuple):
 class KmcDevice:
     """The host side of the KMC 9100 link over pyserial."""
 
-    def __init__(self, port: str, baudrate: float = 1_000_000, codec: str = 'kraft-default',
+    def __init__(self, port: str, baudrate: float = 1_000_000, codec: str = DEFAULT_CODEC,
                  reply_timeout: float = 0.01,
-                 torque_scale: Iterable[float] = DEFAULT_TORQUE_SCALE,
-                 torque_limit: Iterable[float] = DEFAULT_TORQUE_LIMIT,
+                 torque_scale: Iterable[float] | None = None,
+                 torque_limit: Iterable[float] | None = None,
                  low_latency: bool = False, reconnect_min: float = 0.05,
                  reconnect_max: float = 2.0, timeouts_before_reconnect: int = 25) -> None:
         """
         Configure the link; nothing is opened until open().
 
         port: device path or pyserial URL. baudrate: bits/s. codec: a name in
-        protocol.CODECS. reply_timeout: seconds to wait for each reply. torque_scale: five
-        positive command counts per N*m (axes 1..5). torque_limit: five limits in counts
-        (1..32767). low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is a
-        warning in last_error, not an error). reconnect_min, reconnect_max: backoff bounds
+        protocol.CODECS or the path of a frame description. reply_timeout: seconds to wait for
+        each reply. torque_scale: five positive command counts per N*m (axes 1..5; None: the
+        codec's). torque_limit: five limits in counts (1 to the largest count the frame holds;
+        None: the codec's). low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is
+        a warning in last_error, not an error). reconnect_min, reconnect_max: backoff bounds
         (seconds). timeouts_before_reconnect: consecutive timeouts after which the link is
         treated as dead and reopened.
         """
@@ -87,11 +88,13 @@ class KmcDevice:
         self.codec = get_codec(codec)
         self.reply_timeout = _positive('reply_timeout', reply_timeout)
         self.torque_scale = _axis_values(
-            'torque_scale', torque_scale, lambda v: math.isfinite(v) and v > 0,
-            'finite positive counts per N*m')
+            'torque_scale', self.codec.torque_scale if torque_scale is None else torque_scale,
+            lambda v: math.isfinite(v) and v > 0, 'finite positive counts per N*m')
+        count_limit = self.codec.count_limit
         limits = _axis_values(
-            'torque_limit', torque_limit, lambda v: 1 <= v <= INT16_MAX and v == int(v),
-            f'integer counts in 1..{INT16_MAX}')
+            'torque_limit', self.codec.torque_limit if torque_limit is None else torque_limit,
+            lambda v: 1 <= v <= count_limit and v == int(v),
+            f'integer counts in 1..{count_limit}')
         self.torque_limit = tuple(int(v) for v in limits)
         self.low_latency = bool(low_latency)
         self.reconnect_min = _positive('reconnect_min', reconnect_min)
@@ -212,6 +215,8 @@ class KmcDevice:
             command = self.codec.encode_command(sequence, counts)
             assert self._io is not None  # the link is up, so the port is open
             try:
+                if not self.codec.has_sequence:
+                    self._drop_late_replies()
                 start_ns = time.perf_counter_ns()
                 self._io.write(command)
             except (OSError, serial.SerialException) as exc:
@@ -256,7 +261,12 @@ class KmcDevice:
             return CycleResult(frame, receive_ns, round_trip_s, commanded_nm)
 
     def _read_reply(self, sequence: int, deadline_ns: int) -> PotFrame | None:
-        """Read until the reply with this sequence arrives (return it) or the deadline (None)."""
+        """
+        Read until the reply with this sequence arrives (return it) or the deadline (None).
+
+        A frame without sequence numbers has no stale replies to tell apart: the newest reply
+        read is taken (those before it in the same read count as stale).
+        """
         assert self._io is not None  # receive() reads only while the link is up
         read = self._io.read
         decoder = self._decoder
@@ -267,7 +277,9 @@ class KmcDevice:
                 matching = None
                 for frame in decoder.feed(data):
                     self._count_status(frame.status)
-                    if frame.sequence == sequence:
+                    if matching is not None and frame.sequence is None:
+                        self._counters['stale_replies'] += 1
+                    if frame.sequence == sequence or frame.sequence is None:
                         matching = frame
                     else:
                         self._counters['stale_replies'] += 1
@@ -275,6 +287,15 @@ class KmcDevice:
                     return matching
             if time.perf_counter_ns() >= deadline_ns:
                 return None
+
+    def _drop_late_replies(self) -> None:
+        """Before a command of a frame without sequence numbers: drop the replies come late."""
+        assert self._io is not None
+        data = self._io.read_waiting()
+        if data:
+            for frame in self._decoder.feed(data):
+                self._count_status(frame.status)
+                self._counters['stale_replies'] += 1
 
     def _count_status(self, status: int) -> None:
         """Count what a reply's status byte reports, stale replies included."""
@@ -371,6 +392,11 @@ class _PyserialIo:
         data: bytes = port.read(max(size, port.in_waiting))
         return data
 
+    def read_waiting(self) -> bytes:
+        """Return the bytes waiting, without waiting for more."""
+        waiting = self._port.in_waiting
+        return self._port.read(waiting) if waiting else b''
+
 
 class _DescriptorIo:
     """
@@ -396,6 +422,10 @@ class _DescriptorIo:
                 wait_ms = (deadline - time.monotonic()) * 1e3
                 if wait_ms <= 0 or not self._writable.poll(wait_ms):
                     raise serial.SerialTimeoutException('Write timeout') from None
+
+    def read_waiting(self) -> bytes:
+        """Return the bytes waiting, without waiting for more."""
+        return self.read(0, 0)
 
     def read(self, _size: int, deadline_ns: int) -> bytes:
         """Return all bytes waiting, or b'' if none came before deadline_ns (perf_counter_ns)."""

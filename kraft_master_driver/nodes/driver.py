@@ -23,7 +23,7 @@ from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.velocity_filter import VelocityFilter
 from kraft_master_driver.core.wrench_admission import BASE_FRAME, WRIST_FRAME
 from kraft_master_driver.link.device import KmcDevice
-from kraft_master_driver.link.protocol import ERROR_KINDS
+from kraft_master_driver.link.protocol import ERROR_KINDS, get_codec
 from kraft_master_driver.nodes import driver_diagnostics
 from kraft_master_driver.nodes.driver_diagnostics import DriverReadings
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS, SIM_PORT
@@ -55,6 +55,7 @@ class KraftMasterNode(Node):
         self.config = declare_parameters(self, PARAMETERS, params_files)
         self.arm = self.config['arm']
         self.calibration = self._calibration()
+        self.codec = self._codec()
         self.force = ForceReflection(
             force_scale=self.config['force_scale'],
             torque_limits=tuple(self.config['torque_limits']),
@@ -107,10 +108,10 @@ class KraftMasterNode(Node):
         if port == SIM_PORT:
             port = self._start_simulator()
         self.device = KmcDevice(
-            port, baudrate=self.config['baud'], codec=self.config['codec'],
+            port, baudrate=self.config['baud'], codec=self.codec,
             reply_timeout=self.config['reply_timeout'],
-            torque_scale=tuple(self.config['torque_scale']),
-            torque_limit=tuple(self.config['torque_command_limit']),
+            torque_scale=self._torque_setting('torque_scale'),
+            torque_limit=self._torque_setting('torque_command_limit'),
             low_latency=self.config['low_latency'])
         self.device.open()
         if self.device.link_up and self.device.stats['low_latency_failures']:
@@ -158,11 +159,22 @@ class KraftMasterNode(Node):
         except CalibrationError as error:
             raise ParameterError(str(error)) from None
 
+    def _codec(self):
+        """Return the codec the codec parameter names; ParameterError (one line) if it cannot."""
+        try:
+            return get_codec(self.config['codec'])
+        except ValueError as error:
+            raise ParameterError(f'parameter codec: {error}') from None
+
+    def _torque_setting(self, name):
+        """Return a torque parameter given for the node, or None: the codec's then."""
+        return tuple(self.config[name]) if name in self._parameter_overrides else None
+
     def _start_simulator(self):
         from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
         self.simulator = SimulatedKraftMaster(
-            arm=self.arm, calibration=self.calibration,
-            torque_scale=tuple(self.config['torque_scale']),
+            arm=self.arm, calibration=self.calibration, codec=self.codec,
+            torque_scale=self._torque_setting('torque_scale'),
             coupling=self.config['coupling'], operator=self.config['sim_operator'],
             pot_noise_counts=self.config['sim_noise_counts'],
             priority=self.config['loop_priority'])  # it stands in for hardware: as prompt

@@ -5,7 +5,8 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.contact_rendering import RendererSettings
 from kraft_master_driver.core.force_mode import ForceMode, ModeSettings
-from kraft_master_driver.link.protocol import CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE
+from kraft_master_driver.link.protocol import (
+    CODECS, DEFAULT_CODEC, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE)
 from kraft_master_driver.nodes.parameters import Spec
 
 # The port that starts the built-in simulated hand controller.
@@ -20,7 +21,9 @@ PARAMETERS = {
     'port': Spec('/dev/ttyUSB0', 'Serial device path or pyserial URL of the KMC 9100; "sim" '
                  'starts the built-in simulated hand controller on a pseudo-terminal.'),
     'baud': Spec(1_000_000, 'Serial baud rate (bit/s).', low=1200, high=12_000_000),
-    'codec': Spec('kraft-default', 'Frame codec of the serial link.', choices=tuple(CODECS)),
+    'codec': Spec(DEFAULT_CODEC, 'Frame of the serial link: a built-in description ('
+                  f'{", ".join(sorted(CODECS))}) or the path of a frame description .yaml '
+                  '(doc/device-link.md).'),
     'low_latency': Spec(False, 'Put the serial port into the kernel low-latency mode.'),
     'reply_timeout': Spec(0.01, 'Time to wait for the pot frame of a cycle (s).',
                           low=0.0005, high=1.0),
@@ -43,10 +46,13 @@ PARAMETERS = {
     'calibration.angle_b_deg': Spec(_NOMINAL['angle_b_deg'], 'Angle read at pot_b (deg).',
                                     low=-360.0, high=360.0, length=6),
     'torque_scale': Spec([float(x) for x in DEFAULT_TORQUE_SCALE],
-                         'Device command counts per N*m, axes 1..5.',
+                         'Device command counts per N*m, axes 1..5; when not given, the '
+                         "codec's counts_per_nm (the default shown is kraft-default's).",
                          low=1e-6, high=1e6, length=5),
     'torque_command_limit': Spec([int(x) for x in DEFAULT_TORQUE_LIMIT],
-                                 'Clamp of the device command, counts, axes 1..5.',
+                                 'Clamp of the device command, counts, axes 1..5; when not '
+                                 "given, the codec's limit (the default shown is "
+                                 "kraft-default's).",
                                  low=1, high=32767, length=5),
     'torque_limits': Spec([2.0] * 5, 'Largest actuator torque per axis 1..5 (N*m); above it '
                           'the whole torque vector is scaled down together.',

@@ -32,7 +32,7 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import (
     ArmCalibration, CalibrationError, POT_COUNT, POT_JOINT, POT_MAX, POT_MEASURES)
 from kraft_master_driver.link.device import KmcDevice
-from kraft_master_driver.link.protocol import CODECS
+from kraft_master_driver.link.protocol import CODECS, DEFAULT_CODEC
 import numpy as np
 
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
@@ -413,8 +413,9 @@ def _parser():
     parser.add_argument('--force', action='store_true',
                         help='write the calibration even with flagged samples')
     parser.add_argument('--baud', type=int, default=1_000_000, help='baud rate (bit/s)')
-    parser.add_argument('--codec', choices=sorted(CODECS), default='kraft-default',
-                        help='frame codec of the link (default kraft-default)')
+    parser.add_argument('--codec', default=DEFAULT_CODEC,
+                        help=f'the frame of the link: {", ".join(sorted(CODECS))} or the path of '
+                             f'a frame description .yaml (default {DEFAULT_CODEC})')
     parser.add_argument('--sim-calibration', metavar='YAML',
                         help="with --port sim: the simulated device's true calibration")
     parser.add_argument('--sim-noise', type=float, default=1.0,
@@ -438,8 +439,8 @@ def _simulator(args):
     from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
     truth = ArmCalibration.from_yaml(args.sim_calibration) if args.sim_calibration else None
     try:
-        return SimulatedKraftMaster(arm=args.arm, calibration=truth, operator='hold',
-                                    pot_noise_counts=args.sim_noise)
+        return SimulatedKraftMaster(arm=args.arm, calibration=truth, codec=args.codec,
+                                    operator='hold', pot_noise_counts=args.sim_noise)
     except ValueError as error:
         raise CalibrationError(f'--port sim: {error}') from None
 

@@ -17,6 +17,7 @@ from harness.driver import (
     DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for)
 from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.link import frame_description
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
@@ -279,6 +280,36 @@ def test_bad_parameter_exits_1_naming_it(install_prefix, name, value, fragment):
     code, output = driver.wait_exit()
     assert code == 1, output
     assert fragment in output
+
+
+def test_bad_frame_description_exits_1_in_one_line_naming_it(install_prefix, tmp_path):
+    frame = tmp_path / 'bad_frame.yaml'
+    frame.write_text((pathlib.Path(frame_description.builtin_path('kraft-default')).read_text()
+                      .replace('crc16', 'crc32', 1)))
+    refusals = ((frame, f'parameter codec: frame description {frame}: command.checksum.type: '
+                        "unknown checksum 'crc32'"),
+                ('kmc-real', "parameter codec: unknown codec 'kmc-real'"))
+    for codec, line in refusals:
+        driver = DriverProcess(install_prefix, next_domain_id(), [('codec', str(codec))])
+        code, output = driver.wait_exit()
+        assert code == 1, output
+        assert [text for text in output.splitlines() if line in text], output
+
+
+def test_the_installed_example_frame_runs_the_built_in_simulator(install_prefix):
+    domain_id = next_domain_id()
+    driver = DriverProcess(install_prefix, domain_id, [('port', 'sim'),
+                                                       ('codec', 'example-be-crc8')])
+    client = RosClient(domain_id)
+    try:
+        client.wait_connected()
+        count = len(client.joint_states)
+        client.wait(lambda: len(client.joint_states) > count + 100)
+        code, output = driver.interrupt()
+        assert code == 0, output
+    finally:
+        client.close()
+        driver.kill()
 
 
 def test_bad_calibration_file_exits_1_naming_it(install_prefix, tmp_path):

@@ -8,13 +8,13 @@ The simulated device's electronics, between the link and the mechanics (model.py
   the wrist roll has no motor. Counts beyond torque_limit are clamped.
 - A watchdog zeroes the torques when no command arrives for command_timeout, as amplifier
   electronics with a watchdog would.
-- Pots read the device's true calibration (with optional Gaussian noise), 12-bit.
+- Pots read the device's true calibration (with optional Gaussian noise), within the range the
+  frame carries.
 """
 import math
 import operator
 
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.core.calibration import POT_MAX
 from kraft_master_driver.link.protocol import (
     AXIS_COUNT, INT16_MAX, STATUS_AMPLIFIERS_ENABLED, STATUS_COMMAND_CLAMPED,
     STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
@@ -39,12 +39,13 @@ class Electronics:
     """The motor amplifiers with their watchdog, the pot converters and the status byte."""
 
     def __init__(self, model, calibration, *, coupling, torque_scale, torque_limit,
-                 command_timeout, pot_noise_counts, noise_rng):
+                 command_timeout, pot_noise_counts, noise_rng, pot_range):
         """
         Drive the motors of `model` (a DeviceModel); read its pots through `calibration`.
 
         torque_scale is in command counts per N*m, torque_limit in counts; command_timeout
-        (s) is the watchdog's; the pot noise (counts, 1 sigma) is drawn from noise_rng.
+        (s) is the watchdog's; the pot noise (counts, 1 sigma) is drawn from noise_rng; pot
+        counts are clipped to pot_range (lowest, highest).
         """
         scale = _axis_values(torque_scale, 'torque_scale',
                              lambda x: np.isfinite(x) & (x != 0.0), 'finite non-zero numbers')
@@ -59,6 +60,7 @@ class Electronics:
             raise ValueError(f'pot_noise_counts must be >= 0, got {pot_noise_counts!r}')
         self._noise = float(pot_noise_counts)
         self._noise_rng = noise_rng
+        self._pot_low, self._pot_high = pot_range
         self._command_timeout = command_timeout
         self._model = model
         self._calibration = calibration
@@ -113,9 +115,10 @@ class Electronics:
         return status
 
     def read_pots(self):
-        """Return the six pot counts the device reads now (true calibration, noise, 12 bits)."""
+        """Return the six pot counts the device reads now (true calibration, noise, range)."""
         pots = self._calibration.joints_to_frame(self._model.joint_angle_list())
         if self._noise:
             pots = map(operator.add, pots,
                        self._noise_rng.normal(0.0, self._noise, JOINT_COUNT).tolist())
-        return [min(max(round(count), 0), POT_MAX) for count in pots]
+        low, high = self._pot_low, self._pot_high
+        return [min(max(round(count), low), high) for count in pots]

@@ -32,8 +32,7 @@ import time
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
 from kraft_master_driver.core.process import STOP_SIGNALS, stop_with_parent
-from kraft_master_driver.link.protocol import (
-    DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec)
+from kraft_master_driver.link.protocol import CODECS, DEFAULT_CODEC, get_codec
 from kraft_master_driver.simulation.master.electronics import COUPLINGS, Electronics
 from kraft_master_driver.simulation.master.faults import FaultInjector
 from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS, DeviceModel, Workspace
@@ -49,18 +48,20 @@ MAX_CATCH_UP = 0.05  # s of model time per step; a longer idle gap is skipped, n
 class SimulatedKraftMaster:
     """A simulated Kraft Master on a pseudo-terminal or TCP; start() returns the port."""
 
-    def __init__(self, arm='right', calibration=None, codec='kraft-default',
-                 torque_scale=DEFAULT_TORQUE_SCALE, coupling='actuator', operator='hold',
+    def __init__(self, arm='right', calibration=None, codec=DEFAULT_CODEC,
+                 torque_scale=None, coupling='actuator', operator='hold',
                  pot_noise_counts=0.0, baudrate=None, seed=0, *,
-                 torque_limit=DEFAULT_TORQUE_LIMIT, command_timeout=0.1,
+                 torque_limit=None, command_timeout=0.1,
                  operator_period=2.0, drop_reply_rate=0.0, corrupt_byte_rate=0.0,
                  dynamics=DEFAULT_DYNAMICS, record=10000, priority=0, transport='pty'):
         """
         Configure the device; nothing runs until start().
 
         calibration is the device's true calibration (default: the arm's nominal one);
-        torque_scale is in command counts per N*m, torque_limit in counts (larger commands
-        are clamped, status bit1); baudrate None means no wire timing; command_timeout (s)
+        codec is the frame it speaks, a name in protocol.CODECS or the path of a frame
+        description; torque_scale is in command counts per N*m, torque_limit in counts (larger
+        commands are clamped, status bit1), both by default the codec's; baudrate None means
+        no wire timing; command_timeout (s)
         is the watchdog; operator_period (s) is the sweep time per joint or the mean
         segment of the random walk; `record` is the length of the `received` deque;
         priority (1-99) runs the serving thread SCHED_FIFO, answering as promptly as the
@@ -79,6 +80,7 @@ class SimulatedKraftMaster:
         self.calibration = ArmCalibration.nominal(arm) if calibration is None else calibration
         if self.calibration.arm != arm:
             raise ValueError(f'calibration is for the {self.calibration.arm} arm, not {arm}')
+        self.codec = codec
         self._codec = get_codec(codec)
         if operator not in OPERATORS:
             raise ValueError(f'operator must be one of {", ".join(OPERATORS)}, got {operator!r}')
@@ -98,9 +100,11 @@ class SimulatedKraftMaster:
         self._model = DeviceModel(dynamics, workspace.home())
         self._model_lock = threading.Lock()
         self._electronics = Electronics(
-            self._model, self.calibration, coupling=coupling, torque_scale=torque_scale,
-            torque_limit=torque_limit, command_timeout=command_timeout,
-            pot_noise_counts=pot_noise_counts, noise_rng=np.random.default_rng(noise_seed))
+            self._model, self.calibration, coupling=coupling,
+            torque_scale=self._codec.torque_scale if torque_scale is None else torque_scale,
+            torque_limit=self._codec.torque_limit if torque_limit is None else torque_limit,
+            command_timeout=command_timeout, pot_noise_counts=pot_noise_counts,
+            noise_rng=np.random.default_rng(noise_seed), pot_range=self._codec.pot_range)
         self.coupling = coupling
         self._decoder = self._codec.command_decoder()
 
@@ -303,6 +307,9 @@ def main(argv=None):
     parser.add_argument('--calibration', metavar='YAML',
                         help="the device's true calibration, a parameter file such as "
                              'config/right_arm.yaml (default: nominal)')
+    parser.add_argument('--codec', default=DEFAULT_CODEC,
+                        help=f'the frame spoken: {", ".join(sorted(CODECS))} or the path of a '
+                             f'frame description .yaml (default {DEFAULT_CODEC})')
     parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     parser.add_argument('--priority', type=int, default=0,
                         help='SCHED_FIFO priority 1-99 of the thread that answers commands, '
@@ -312,7 +319,8 @@ def main(argv=None):
                              'socket:// URL, as of a serial device server')
     parser.add_argument('--record', metavar='NPY',
                         help='on exit, save every received command as rows (time_ns, '
-                             'counts axis 1..5, sequence) in this .npy file')
+                             'counts axis 1..5, sequence or -1 when the frame has none) in '
+                             'this .npy file')
     args = parser.parse_args(argv)
 
     calibration = None
@@ -324,7 +332,8 @@ def main(argv=None):
     arm = args.arm or (calibration.arm if calibration else 'right')
     try:
         simulator = SimulatedKraftMaster(
-            arm=arm, calibration=calibration, coupling=args.coupling, operator=args.operator,
+            arm=arm, calibration=calibration, codec=args.codec, coupling=args.coupling,
+            operator=args.operator,
             pot_noise_counts=args.noise, baudrate=args.baud, seed=args.seed,
             drop_reply_rate=args.drop_rate, corrupt_byte_rate=args.corrupt_rate,
             record=RECORD_ALL if args.record else 10000, priority=args.priority,
@@ -353,7 +362,8 @@ def main(argv=None):
             print(f'kraft_master_sim: stopped, {simulator.stats}', file=sys.stderr)
         if args.record:
             np.save(args.record, np.array(
-                [(t, *command.counts, command.sequence) for t, command in simulator.received],
+                [(t, *command.counts, -1 if command.sequence is None else command.sequence)
+                 for t, command in simulator.received],
                 dtype=np.int64).reshape(-1, 7))
     finally:
         for signum, handler in handlers.items():

@@ -16,7 +16,7 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration, POT_MAX
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import (
-    DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
+    CODECS, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE, get_codec, STATUS_AMPLIFIERS_ENABLED,
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
 from kraft_master_driver.simulation.master.model import (
     actuators_to_joints, joints_to_actuators, Workspace)
@@ -529,6 +529,52 @@ def test_cli_serves_tcp_to_the_driver_device_code():
         assert all(result is not None for result in results)
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=20) == 0
+
+
+@pytest.mark.parametrize('codec', sorted(CODECS))
+def test_each_described_frame_drives_the_device(codec):
+    with SimulatedKraftMaster(codec=codec, command_timeout=0.05) as simulator:
+        device = KmcDevice(simulator.port, codec=codec, reply_timeout=0.5)
+        with device:
+            first = device.cycle((0.0,) * 5)
+            assert first is not None and first.frame.status & STATUS_AMPLIFIERS_ENABLED
+            # The simulator undoes the description's torque sign (-1 on axis 5 in the example):
+            # +1 N*m on axis 5 turns th5 positive, whatever the sign on the wire.
+            wait_for(lambda: device.cycle((0.0, 0.0, 0.0, 0.0, 1.0)) and
+                     simulator.joint_angles()[4] > HOME[4] + 0.03)
+            assert simulator.received[-1][1].counts[4] == round(device.torque_scale[4])
+            clamped = device.cycle((0.0, 0.0, 0.0, 0.0, 1e3))
+            assert clamped is not None and device.stats['clamped_commands'] == 1
+            # The device itself clamps, so the simulator's clamp bit stays clear.
+            assert not clamped.frame.status & STATUS_COMMAND_CLAMPED
+            wait_for(lambda: simulator.stats['timeouts'] >= 1)
+            assert device.cycle((0.0,) * 5).frame.status & STATUS_COMMAND_TIMEOUT
+        assert simulator.received[-1][1].counts == ZERO  # written on close
+        assert sum(simulator.stats['decode_errors'].values()) == 0
+
+
+@pytest.mark.process
+def test_cli_speaks_the_frame_it_is_given():
+    with running_cli('--tcp', '--codec', 'example-be-crc8') as process:
+        url = read_port_line(process)
+        with KmcDevice(url, codec='example-be-crc8') as device:
+            results = [device.cycle([0.0] * 5) for _ in range(100)]
+        assert all(result is not None and result.frame.sequence is None for result in results)
+        with KmcDevice(url, reply_timeout=0.005, timeouts_before_reconnect=1000) as device:
+            assert not any(device.cycle([0.0] * 5) for _ in range(20))  # another frame
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 0
+
+
+def test_cli_refuses_a_bad_frame_description_in_one_line(tmp_path):
+    bad = tmp_path / 'bad_frame.yaml'
+    bad.write_text('name: bad\n')
+    result = subprocess.run(
+        [sys.executable, '-m', 'kraft_master_driver.simulation.master.simulator',
+         '--codec', str(bad)], capture_output=True, text=True, cwd=REPO,
+        env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=60)
+    assert result.returncode == 2
+    assert f'frame description {bad}: command: missing' in result.stderr.splitlines()[-1]
 
 
 @pytest.mark.process
