@@ -5,9 +5,10 @@
 Plot one run of benchmarks/delay_model.py, passivity off against on (doc/figures/).
 
 Reads the JSON the benchmark writes with --json (doc/figures/delay_model.json is the run
-doc/passivity.md shows) and draws, against the round trip, the master's peak-to-peak over the
-hold, the energy the channel generated and the force the operator felt; the rows without loss
-as lines, those with 1 and 10 % loss as points. Every value plotted is one of the file's.
+doc/design/passivity-experiments.md shows) and draws, against the round trip, the master's
+peak-to-peak over the hold, the energy the channel generated and the force the operator felt;
+the rows without loss as lines, those with 1 and 10 % loss as points. Every value plotted is
+one of the file's.
 """
 import argparse
 import json

@@ -49,8 +49,9 @@ FIRST_FORCE = 1.0  # N: a wrench at least this strong is the contact's first new
 BRIDGE_SETTINGS = {name: value for name, value in MUJOCO_BRIDGE.items()
                    if name in Settings._fields}
 MAX_FORCE = 60.0  # N
-# Passivity as doc/passivity.md has it feel the contact at 0 ms: the slave port books the force
-# sent, the master port a 5 N*s/m damper (0.5 N of drag at 100 mm/s).
+# Passivity as doc/design/passivity-experiments.md (Booking the force sent) has it feel the
+# contact at 0 ms: the slave port books the force sent, the master port a 5 N*s/m damper (0.5 N
+# of drag at 100 mm/s).
 SENT_BOOKS = {'passivity': True, 'slave_port_force': 'sent', 'passivity_damping': 5.0}
 
 

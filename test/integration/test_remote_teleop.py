@@ -23,8 +23,9 @@ def test_contact_across_100_ms_is_stable_and_the_channel_passive(install_prefix)
     print(row)
     # The contact happened and held: the master past the wall, the slave in it, and its force
     # reflected. How much of that force passivity lets through depends on the link the machine
-    # gives: 2.9 to 3.4 N in doc/passivity.md, 0.25 N in a fresh-clone run at idle whose link
-    # lost 10 to 12 % where 1 % was asked (its contact still, its channel passive).
+    # gives: 2.9 to 3.4 N in doc/design/passivity-experiments.md, 0.25 N in a fresh-clone run
+    # at idle whose link lost 10 to 12 % where 1 % was asked (its contact still, its channel
+    # passive).
     assert row['master_depth_mm'] > 0.0
     assert 0.1 < row['slave_penetration_mm'] < 5.0
     assert row['force_slave_n'] > 0.0 and row['force_felt_n'] > 0.0

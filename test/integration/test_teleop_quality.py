@@ -31,7 +31,8 @@ def test_at_0_ms_plain_force_reflection_through_whole_pot_counts_holds_still_and
 
 @pytest.mark.parametrize('stiffness', [1000.0, 5000.0])
 def test_at_0_ms_passivity_booking_the_force_sent_holds_still_and_is_felt(stiffness):
-    # doc/passivity.md: the slave port books the force sent, the master port a light damper.
+    # doc/design/passivity-experiments.md, Booking the force sent: the slave port books the
+    # force sent, the master port a light damper.
     result = figures(Session(stiffness=stiffness, **SENT_BOOKS, **PUSH))
     assert result['master_pp'] <= 0.0005
     assert result['felt_ratio'] >= 0.9
@@ -61,7 +62,8 @@ def test_at_250_ms_passivity_keeps_the_contact_that_plain_force_reflection_shake
 
 
 def test_at_250_ms_the_credit_before_the_first_force_cannot_pay_for_following_the_master():
-    # doc/passivity.md: when the contact's first force reaches the master, the master is far
+    # doc/design/passivity-experiments.md, What 250 and 500 ms would need: when the contact's
+    # first force reaches the master, the master is far
     # past the table; following it would cost the arm more than the master's port has sent.
     result = figures(Session(round_trip_ms=250.0, **SENT_BOOKS, **PUSH))
     series = 1000.0 * 20000.0 / (1000.0 + 20000.0)

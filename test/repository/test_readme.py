@@ -89,7 +89,8 @@ def test_the_simulator_section_names_every_operator():
 
 # -- links ----------------------------------------------------------------------------------
 
-PAGES = [REPO / 'README.md', REPO / 'CONTRIBUTING.md', *sorted(DOC.glob('*.md'))]
+PAGES = [REPO / 'README.md', REPO / 'CONTRIBUTING.md', *sorted(DOC.glob('*.md')),
+         *sorted((DOC / 'design').glob('*.md'))]
 LINK = re.compile(r'!?\[[^\]]*\]\(([^)\s]+)\)')
 
 
