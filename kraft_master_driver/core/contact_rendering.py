@@ -32,7 +32,7 @@ class RendererSettings(NamedTuple):
     """The wall's limits (SI units)."""
 
     rate_hz: float = 1000.0  # the loop's rate
-    device_damping: float = 0.4  # N*s/m: the device's own, in its least damped direction
+    device_damping: float = 0.37  # N*s/m: the simulated device's own, least damped direction
     approach_speed: float = 0.05  # m/s a surface moves to its estimated place
     update_energy: float = 0.05  # J an update may put into the operator's hand
     model_timeout: float = 0.5  # s without a model message: the wall is gone
@@ -169,7 +169,7 @@ class ContactRenderer:
     def _fade(self, magnitude: float, normal: Vector, velocity: Vector) -> float:
         """Return 1, or less where pushing the hand would take the balance below zero."""
         giving = magnitude * _dot(normal, velocity) / self.settings.rate_hz
-        if giving <= 0.0:
+        if giving <= 0.0 or self.balance >= giving * FADE_CYCLES:
             return 1.0
         # Faded over the last FADE_CYCLES cycles' worth of work, not cut at once.
         return max(0.0, min(1.0, self.balance / (giving * FADE_CYCLES)))

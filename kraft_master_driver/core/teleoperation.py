@@ -19,7 +19,8 @@ operating state when it changed, and why an input was refused. enable() and disa
 an Answer, which carries those Outputs. The motion path (mapping, limits, the slave port) is
 core/teleoperation_motion.py, the force path core/teleoperation_force.py, the input checks
 core/teleoperation_inputs.py, the settings core/teleoperation_settings.py; configure() takes
-new settings while it runs (core/teleoperation_tuning.py: what a change asks for).
+new settings while it runs (core/teleoperation_tuning.py: what a change asks for, and the
+force path ramped across changes).
 
 Frames: the master's pose is in the master's base frame, the arm's pose and its target in the
 arm's base frame; `base_rotation` turns master-base vectors into arm-base ones. The wrist F/T
@@ -33,12 +34,13 @@ from kraft_master_driver.core.contact_model import ContactModel
 from kraft_master_driver.core.passivity import SlavePort
 from kraft_master_driver.core.rotations import norm, rotation_parameter
 from kraft_master_driver.core.teleoperation_contact import ContactSharing, Registration
-from kraft_master_driver.core.teleoperation_force import ForcePath
 from kraft_master_driver.core.teleoperation_inputs import (
-    checked_pose, checked_reading, Floats, tracking_error)
+    checked_pose, checked_reading, enable_refusal, Floats, stale_arm_side, tare_refusal,
+    tracking_error)
 from kraft_master_driver.core.teleoperation_motion import Motion, Pose
 from kraft_master_driver.core.teleoperation_settings import Array, checked, MAX_STEP, Settings
-from kraft_master_driver.core.teleoperation_tuning import changed, FORCE, REGISTERING, WrenchRamp
+from kraft_master_driver.core.teleoperation_tuning import (
+    changed, FORCE, RampedForce, REGISTERING, Sensed)
 import numpy as np
 
 
@@ -105,10 +107,8 @@ class Teleoperation:
         self.port = SlavePort(settings.drift_gain)
         self.port.enabled = settings.passivity
         self.motion = Motion(settings, checked_settings.box, self.port)
-        self.force = ForcePath(settings, checked_settings.sensor_rotation)
+        self.force = RampedForce(settings, checked_settings.sensor_rotation)
         self.contact = ContactSharing(settings)
-        self._ramp: Optional[WrenchRamp] = None  # the force path before a change, while ramping
-        self._sent_force = np.zeros(3)  # N, master base frame: the last wrench's force sent
         self.state = OperatingState.DISABLED
         self.reason = 'not enabled'
         self.clutch_pressed = False
@@ -154,8 +154,8 @@ class Teleoperation:
             arm = self.arm
             if arm is not None and now - arm[1] <= self.settings.arm_timeout:
                 self.hold = arm[0]
-            elif self.motion.command is not None:
-                self.hold = self.motion.command
+            else:
+                self.hold = self.motion.command or self.hold
         self.state, self.reason = OperatingState.FAULT, reason
         self.motion.registration = None
 
@@ -166,8 +166,7 @@ class Teleoperation:
 
     def _hold_here(self) -> None:
         """Hold at the last command (or where the arm is, if nothing was commanded yet)."""
-        if self.motion.command is not None:
-            self.hold = self.motion.command
+        self.hold = self.motion.command or self.hold
         self.motion.registration = None
 
     def enable(self, now: float,
@@ -190,24 +189,11 @@ class Teleoperation:
 
     def _enable(self, now: float) -> Optional[str]:
         """Enable if every input is fresh and the arm in the box; return None, or why not."""
-        settings = self.settings
-        inputs: list[tuple[str, Optional[tuple[object, float]], float]] = [
-            ('pose', self.master, settings.master_timeout),
-            ('measured_cp', self.arm, settings.arm_timeout)]
-        if settings.force_feedback:
-            inputs.append(('measured_cf', self.reading, settings.ft_timeout))
-        missing = [name for name, sample, timeout in inputs
-                   if sample is None or now - sample[1] > timeout]
-        if missing:
-            return 'no fresh ' + ', '.join(missing) + ': not enabled'
-        assert self.arm is not None
-        position = self.arm[0].position
-        box = self.motion.box
-        if np.any(position < box[0]) or np.any(position > box[1]):
-            return (f'the arm at {np.round(position, 4).tolist()} m is outside the workspace '
-                    'box: not enabled')
-        if self.state in DRIVING:
-            return None
+        refusal = enable_refusal(self.settings, self.master, self.arm, self.reading,
+                                 self.motion.box, now)
+        if refusal is not None or self.state in DRIVING:
+            return refusal
+        assert self.arm is not None  # enable_refusal needs it fresh
         # Registered at the next master pose: the arm's target starts where it is.
         self.motion.command, self.hold, self.motion.registration = None, self.arm[0], None
         self.state = OperatingState.CLUTCHED if self.clutch_pressed else OperatingState.ENABLED
@@ -236,9 +222,8 @@ class Teleoperation:
         changes = changed(self.settings, settings)
         held = self.arm_command() if self.state in DRIVING else None
         if FORCE & changes:
-            self._ramp = WrenchRamp(self.force, self.settings.force_feedback,
-                                    self.base_rotation, now, self._ramp)
-            self.force = self.force.retuned(settings, checked_settings.sensor_rotation)
+            self.force.retune(self.settings, self.base_rotation, settings,
+                              checked_settings.sensor_rotation, now)
         if 'base_rotation' in changes:
             self.base_rotation = checked_settings.base_rotation
         self.settings = self.motion.settings = self.contact.settings = settings
@@ -274,37 +259,30 @@ class Teleoperation:
         """
         Apply the timeouts at `now`; return what to send at every tick.
 
-        The slave port's energies, and while not following the arm's hold command and the
-        master's zero wrench (also while following without force feedback: no F/T reading
-        sends it).
+        The slave port's energies and the contact model (core/teleoperation_contact.py), and
+        while not following the arm's hold command and the master's zero wrench (also while
+        following without force feedback: no F/T reading sends it).
         """
         self._check(now)
         port = self.port
         energy = (port.energy_in, port.energy_out, port.dissipated)
-        registration = None
-        if self.following and self.settings.force_feedback:
-            assert self.motion.registration is not None
-            registration = Registration(*self.motion.registration, self.base_rotation)
-        model = self.contact.to_send(registration, now)
-        if not self.following:
-            return self._outputs(self._command(), self.master_wrench(now), energy,
-                                 contact_model=model)
-        if not self.settings.force_feedback:
-            return self._outputs(wrench=self.master_wrench(now), slave_energy=energy,
-                                 contact_model=model)
-        return self._outputs(slave_energy=energy, contact_model=model)
+        feeling = self.following and self.settings.force_feedback
+        mapped = self.motion.registration if feeling else None
+        model = self.contact.to_send(
+            None if mapped is None else Registration(*mapped, self.base_rotation), now)
+        return self._outputs(None if self.following else self._command(),
+                             None if feeling else self.master_wrench(now), energy,
+                             contact_model=model)
 
     def _check(self, now: float) -> None:
         """Apply the timeouts: a stale master holds, a stale arm or F/T is a FAULT."""
-        settings = self.settings
         if self.state not in DRIVING:
             return
-        assert self.arm is not None and self.master is not None  # enable needed them
-        if now - self.arm[1] > settings.arm_timeout:
-            self._fault(f'measured_cp older than arm_timeout {settings.arm_timeout:g} s', now)
-        elif (settings.force_feedback and self.reading is not None
-              and now - self.reading[1] > settings.ft_timeout):
-            self._fault(f'measured_cf older than ft_timeout {settings.ft_timeout:g} s', now)
+        assert self.master is not None  # enable needed it
+        settings = self.settings
+        stale = stale_arm_side(settings, self.arm, self.reading, now)
+        if stale is not None:
+            self._fault(stale, now)
         elif self.following and now - self.master[1] > settings.master_timeout:
             self._hold_here()
             self.reason = f'holding: pose older than master_timeout {settings.master_timeout:g} s'
@@ -327,8 +305,10 @@ class Teleoperation:
                 self.motion.register(pose, self.hold)
             else:
                 assert previous is not None  # the registration took a master pose
+                contact = self.contact_wrench() if self.reading is not None else None
                 self.motion.follow(pose, min(now - previous[1], MAX_STEP), self.base_rotation,
-                                   self._port_force())
+                                   self.force.port_force(self.settings, self.base_rotation,
+                                                         contact))
         return self._outputs(self._command() if self.following else None)
 
     def arm_pose(self, frame_id: str, position: Floats, quaternion: Floats,
@@ -353,12 +333,10 @@ class Teleoperation:
             self._fault(reading, now)
             return self._outputs(wrench=self.master_wrench(now), refusal=reading)
         self.reading = (reading, now)
-        arm = self.arm
-        if arm is not None and now - arm[1] <= self.settings.arm_timeout:
+        if self.arm is not None and stale_arm_side(self.settings, self.arm, None, now) is None:
             command = self.motion.command if self.following else None
-            self.contact.reading(arm[0].position, self.contact_wrench()[:3],
-                                 None if command is None else command.position, now)
-            self.motion.floor = self.contact.floor
+            self.motion.floor = self.contact.reading(
+                self.arm[0].position, self.contact_wrench()[:3], command, now)
         return self._outputs(wrench=self.master_wrench(now))
 
     def master_energy(self, energy_in: float) -> None:
@@ -368,13 +346,11 @@ class Teleoperation:
     def tare(self, now: float) -> Optional[str]:
         """Take the current reading, less the tool's weight, as the bias; None or why not."""
         reading, arm = self.reading, self.arm
-        if reading is None or now - reading[1] > self.settings.ft_timeout:
-            return 'no fresh measured_cf to tare'
-        if arm is None or now - arm[1] > self.settings.arm_timeout:
-            return 'no fresh measured_cp: the tool weight needs the orientation'
-        self.force.tare(reading[0], arm[0].rotation)
-        self._ramp = None  # the bias steps the wrench anyway: no blend with the one before
-        return None
+        refusal = tare_refusal(self.settings, arm, reading, now)
+        if refusal is None:
+            assert reading is not None and arm is not None
+            self.force.tare(reading[0], arm[0].rotation)
+        return refusal
 
     # -- what to send ------------------------------------------------------------------
 
@@ -398,53 +374,19 @@ class Teleoperation:
 
     def arm_twist(self) -> Array:
         """Return the twist command (6: m/s, rad/s, arm base), zeros unless following."""
-        if not self.following or self.arm is None:
-            return np.zeros(6)
-        return self.motion.twist(self.arm[0])
+        arm = self.arm
+        return self.motion.twist(arm[0]) if self.following and arm is not None else np.zeros(6)
 
     def contact_wrench(self) -> Array:
         """Return the environment's wrench on the tool (6, arm base frame), less bias and tool."""
         assert self.reading is not None and self.arm is not None
-        return self.force.contact_wrench(self.reading[0], self.arm[0].rotation)
-
-    def _port_force(self) -> Array:
-        """
-        Return the force (3, arm base frame) the slave port books; zeros if none.
-
-        slave_port_force 'contact': the F/T contact force. 'sent': the force of the last wrench
-        sent to the master, in the arm's frame and divided by scale, so that against the arm's
-        commanded motion it is the power the master's port books against the master's motion:
-        both ends count one energy whatever the scales, the dead band, the low-pass and the
-        limits (a force that lags the command, as an arm's does, is booked as it is felt).
-        """
-        if self.settings.slave_port_force == 'sent':
-            return self.base_rotation @ self._sent_force / self.settings.scale
-        if not self.settings.force_feedback or self.reading is None or self.arm is None:
-            return np.zeros(3)
-        return self.contact_wrench()[:3]
+        return self.force.path.contact_wrench(self.reading[0], self.arm[0].rotation)
 
     def master_wrench(self, now: float) -> Array:
         """Return the wrench for the master (6, master base frame); zeros unless following."""
-        if self._ramp is not None and self._ramp.weight(now) == 1.0:
-            self._ramp = None
-        wrench = self._ramped(self.force, self.settings.force_feedback, self.base_rotation,
-                              self._ramp, now)
-        self._sent_force = wrench[:3]
-        return wrench
-
-    def _ramped(self, force: ForcePath, force_feedback: bool, base_rotation: Array,
-                ramp: Optional[WrenchRamp], now: float) -> Array:
-        """Return the wrench of a force path, blended from the one before while `ramp` runs."""
-        if self.following and force_feedback and self.reading is not None:
-            assert self.arm is not None  # following needs it
-            contact = force.contact_wrench(self.reading[0], self.arm[0].rotation)
-            assert self.motion.command is not None  # following: registered
-            stretch = norm(self.motion.command.position - self.arm[0].position)
-            wrench = force.master_wrench(force.within_pull(contact, stretch), base_rotation, now)
-        else:
-            wrench = force.zero()
-        if ramp is None or ramp.weight(now) == 1.0:
-            return wrench
-        before = self._ramped(ramp.force, ramp.force_feedback, ramp.base_rotation, ramp.before,
-                              now)
-        return before + ramp.weight(now) * (wrench - before)
+        sensed = None
+        if self.following and self.reading is not None:
+            assert self.arm is not None and self.motion.command is not None  # following
+            sensed = Sensed(self.reading[0], self.arm[0].rotation,
+                            norm(self.motion.command.position - self.arm[0].position))
+        return self.force.wrench(sensed, self.settings.force_feedback, self.base_rotation, now)

@@ -69,24 +69,29 @@ class ContactSharing:
         self._known = NO_CONTACT  # the arm-frame model the master was last sent
         self.floor: Optional[tuple[Array, float]] = None  # normal (arm) and least n . x
 
-    def reading(self, position: Array, force: Array, command: Optional[Array],
-                now: float) -> None:
-        """Take the arm's position, the contact force (arm base) and the command's position."""
+    def reading(self, position: Array, force: Array, command: Optional[Pose],
+                now: float) -> Optional[tuple[Array, float]]:
+        """
+        Take the arm's position, the contact force (arm base) and its command (None: none).
+
+        Return the floor (Motion.floor): where the arm yields, or None.
+        """
         self.estimator.update(position, force, now)
         known = self._known
         tolerance = self.settings.model_tolerance
         if known.stiffness <= 0.0 or tolerance <= 0.0:
             self.floor = None
-            return
+            return None
         normal = np.array(known.normal)
         pressing = float(normal @ force)
         expected = known.stiffness * max(float(normal @ (np.array(known.point) - position)), 0.0)
         excess = pressing - expected
         if command is not None and excess > tolerance:
             if self.floor is None:
-                self.floor = (normal, float(normal @ command))
+                self.floor = (normal, float(normal @ command.position))
         elif excess < 0.5 * tolerance:
             self.floor = None
+        return self.floor
 
     def to_send(self, registration: Optional[Registration], now: float
                 ) -> Optional[ContactModel]:

@@ -62,3 +62,44 @@ def tracking_error(measured: Pose, reference: Pose, settings: Settings) -> Optio
         return (f'tracking error {angle:.3f} rad beyond max_tracking_angle '
                 f'{settings.max_tracking_angle:g} rad')
     return None
+
+
+Sample = Optional[tuple[object, float]]  # an input and its receipt time (s), None: none yet
+
+
+def enable_refusal(settings: Settings, master: Sample, arm: Optional[tuple[Pose, float]],
+                   reading: Sample, box: tuple[Array, Array], now: float) -> Optional[str]:
+    """Return why the bridge cannot be enabled at `now` (a stale input, the arm out of the box)."""
+    inputs: list[tuple[str, Sample, float]] = [('pose', master, settings.master_timeout),
+                                               ('measured_cp', arm, settings.arm_timeout)]
+    if settings.force_feedback:
+        inputs.append(('measured_cf', reading, settings.ft_timeout))
+    missing = [name for name, sample, timeout in inputs
+               if sample is None or now - sample[1] > timeout]
+    if missing:
+        return 'no fresh ' + ', '.join(missing) + ': not enabled'
+    assert arm is not None
+    position = arm[0].position
+    if np.any(position < box[0]) or np.any(position > box[1]):
+        return (f'the arm at {np.round(position, 4).tolist()} m is outside the workspace box: '
+                'not enabled')
+    return None
+
+
+def stale_arm_side(settings: Settings, arm: Sample, reading: Sample,
+                   now: float) -> Optional[str]:
+    """Return why the arm's side is stale at `now` (measured_cp, or measured_cf), or None."""
+    if arm is None or now - arm[1] > settings.arm_timeout:
+        return f'measured_cp older than arm_timeout {settings.arm_timeout:g} s'
+    if settings.force_feedback and reading is not None and now - reading[1] > settings.ft_timeout:
+        return f'measured_cf older than ft_timeout {settings.ft_timeout:g} s'
+    return None
+
+
+def tare_refusal(settings: Settings, arm: Sample, reading: Sample, now: float) -> Optional[str]:
+    """Return why the F/T bias cannot be taken at `now`, or None."""
+    if reading is None or now - reading[1] > settings.ft_timeout:
+        return 'no fresh measured_cf to tare'
+    if arm is None or now - arm[1] > settings.arm_timeout:
+        return 'no fresh measured_cp: the tool weight needs the orientation'
+    return None

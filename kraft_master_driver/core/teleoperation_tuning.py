@@ -16,6 +16,7 @@ from typing import NamedTuple, Optional
 
 from kraft_master_driver.core.teleoperation_force import ForcePath
 from kraft_master_driver.core.teleoperation_settings import Array, Settings
+import numpy as np
 
 RAMP_S = 0.5  # s over which a change of a force setting takes effect
 REGISTERING = frozenset({'scale', 'orientation', 'base_rotation', 'passivity'})
@@ -43,3 +44,75 @@ class WrenchRamp(NamedTuple):
     def weight(self, now: float) -> float:
         """Return the new settings' share of the wrench at `now`: 0 at the change, 1 after."""
         return min(max((now - self.start) / RAMP_S, 0.0), 1.0)
+
+
+class Sensed(NamedTuple):
+    """What the master's wrench is made of while following: a reading and the arm's state."""
+
+    reading: Array  # the F/T reading (6, sensor frame)
+    arm_rotation: Array  # the arm's measured tool rotation (3x3, arm base frame)
+    stretch: float  # m between the arm's command and its measured tool
+
+
+class RampedForce:
+    """The bridge's force path and the ramps of its changes: a master's wrench without steps."""
+
+    def __init__(self, settings: Settings, sensor_rotation: Array) -> None:
+        """Take the settings and the sensor's rotation in the arm's measured tool frame."""
+        self.path = ForcePath(settings, sensor_rotation)
+        self.ramp: Optional[WrenchRamp] = None  # the force path before a change, while ramping
+        self.sent_force = np.zeros(3)  # N, master base frame: the last wrench's force
+
+    def retune(self, before: Settings, base_rotation: Array, settings: Settings,
+               sensor_rotation: Array, now: float) -> None:
+        """Take new settings at `now`, ramped from `before` (and its base_rotation)."""
+        self.ramp = WrenchRamp(self.path, before.force_feedback, base_rotation, now, self.ramp)
+        self.path = self.path.retuned(settings, sensor_rotation)
+
+    def tare(self, reading: Array, arm_rotation: Array) -> None:
+        """Take the reading, less the tool's weight, as the bias: the wrench steps, no ramp."""
+        self.path.tare(reading, arm_rotation)
+        self.ramp = None
+
+    def wrench(self, sensed: Optional[Sensed], force_feedback: bool, base_rotation: Array,
+               now: float) -> Array:
+        """Return the master's wrench (6, master base frame) of what was sensed (None: zeros)."""
+        if self.ramp is not None and self.ramp.weight(now) == 1.0:
+            self.ramp = None
+        wrench = _ramped(self.path, force_feedback, base_rotation, self.ramp, sensed, now)
+        self.sent_force = wrench[:3]
+        return wrench
+
+    def port_force(self, settings: Settings, base_rotation: Array,
+                   contact: Optional[Array]) -> Array:
+        """
+        Return the force (3, arm base frame) the slave port books; zeros if none.
+
+        slave_port_force 'contact': the F/T contact force (`contact`, the contact wrench, None
+        without a reading). 'sent': the force of the last wrench sent to the master, in the
+        arm's frame and divided by scale, so that against the arm's commanded motion it is the
+        power the master's port books against the master's motion: both ends count one energy
+        whatever the scales, the dead band, the low-pass and the limits (a force that lags the
+        command, as an arm's does, is booked as it is felt).
+        """
+        if settings.slave_port_force == 'sent':
+            return base_rotation @ self.sent_force / settings.scale
+        if not settings.force_feedback or contact is None:
+            return np.zeros(3)
+        return contact[:3]
+
+
+def _ramped(path: ForcePath, force_feedback: bool, base_rotation: Array,
+            ramp: Optional[WrenchRamp], sensed: Optional[Sensed], now: float) -> Array:
+    """Return the wrench of a force path, blended from the one before while `ramp` runs."""
+    if force_feedback and sensed is not None:
+        contact = path.contact_wrench(sensed.reading, sensed.arm_rotation)
+        wrench = path.master_wrench(path.within_pull(contact, sensed.stretch), base_rotation,
+                                    now)
+    else:
+        wrench = path.zero()
+    if ramp is None or ramp.weight(now) == 1.0:
+        return wrench
+    before = _ramped(ramp.force, ramp.force_feedback, ramp.base_rotation, ramp.before, sensed,
+                     now)
+    return before + ramp.weight(now) * (wrench - before)

@@ -349,8 +349,9 @@ def tapping_figures(session=Session(), tapping=Tapping(), window=1.0):
     peak-to-peak, the table's force and the force felt (means), the stiffness felt (felt over
     past); over the touch: the largest step of the force felt from one millisecond to the next,
     and the largest force felt while the master and the hand's tip are both above the table
-    (drag). The run: the stiffness possible (the arm's in series with the table's, clipped to
-    the master's renderable wall), and when the arm and then the master first felt 1 N.
+    (drag), and the table's largest force. The run: the stiffness possible (the arm's in series
+    with the table's, clipped to the master's renderable wall), and when the arm and then the
+    master first felt 1 N.
     """
     log, master, bounds = tap(session, tapping)
     touches = []
@@ -366,6 +367,7 @@ def tapping_figures(session=Session(), tapping=Tapping(), window=1.0):
             'table_force': float(hold[:, 4].mean()), 'felt_force': float(felt),
             'felt_stiffness': float(felt / past) if past > 0.0 else math.nan,
             'force_step': float(np.abs(np.diff(rows[:, 5])).max()),
+            'max_table_force': float(rows[:, 4].max()),
             'drag': float(np.abs(rows[free, 5]).max()) if free.any() else math.nan})
     series = session.stiffness * session.table_stiffness / (
         session.stiffness + session.table_stiffness)

@@ -169,11 +169,11 @@ def test_with_a_tolerance_the_arm_yields_where_it_presses_harder_than_the_model(
     sharing.to_send(Registration(pose, pose, np.eye(3)), 10.0)
     command = np.array([0.3, 0.0, TABLE - 0.002])
     at_two_mm = STIFFNESS * 0.002
-    sharing.reading(command, np.array([0.0, 0.0, at_two_mm + 1.0]), command, 10.1)
+    sharing.reading(command, np.array([0.0, 0.0, at_two_mm + 1.0]), Pose(command, np.eye(3)), 10.1)
     assert sharing.floor is None  # within the tolerance
-    sharing.reading(command, np.array([0.0, 0.0, at_two_mm + 5.0]), command, 10.2)
+    sharing.reading(command, np.array([0.0, 0.0, at_two_mm + 5.0]), Pose(command, np.eye(3)), 10.2)
     normal, least = sharing.floor
     assert normal == pytest.approx([0.0, 0.0, 1.0], abs=1e-3)
     assert least == pytest.approx(TABLE - 0.002, abs=1e-4)
-    sharing.reading(command, np.array([0.0, 0.0, at_two_mm]), command, 10.3)
+    sharing.reading(command, np.array([0.0, 0.0, at_two_mm]), Pose(command, np.eye(3)), 10.3)
     assert sharing.floor is None
