@@ -140,10 +140,12 @@ def test_policy_names_exactly_the_endpoints_of_the_running_nodes(running_nodes):
                                   if p.get('ns') == '/right' and p.get('node') == node))
                 for path, node in ((DRIVER, 'kraft_master_node'), (SLAVE, 'kraft_master_teleop'),
                                    (SLAVE, 'kraft_master_slave_sim'))}
-    # rate_command is advertised once rate_command_enabled is true (at start or at run time):
-    # the policy allows it, so the driver runs with it on.
+    # rate_command is advertised once rate_command_enabled is true (at start or at run time),
+    # contact_model taken with force_mode other than direct: the policy allows both, so the
+    # driver runs with them on.
     driver = running_nodes('kraft_master_node', 'kraft_master_node',
-                           [('port', 'sim'), ('rate_command_enabled', 'true')])
+                           [('port', 'sim'), ('rate_command_enabled', 'true'),
+                            ('force_mode', 'auto')])
     # The bridge's and the arm's endpoints depend on their mode (and the bridge's joy on its
     # clutch_button): the policy allows both modes.
     bridge_modes = [running_nodes('kraft_master_teleop', 'kraft_master_teleop', parameters)
