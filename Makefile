@@ -20,7 +20,7 @@ CONSTRAINTS ?= --constraint $(LOCK)
 DURATION ?= 20
 DELAY_MS ?= 0
 PASSIVITY ?= off
-FORCE_MODE ?= direct
+FORCE_MODE ?= auto
 ARM ?= mujoco
 
 # Keep DDS discovery on this machine for everything started from here.
@@ -112,6 +112,7 @@ doc-figures: $(DEVELOPMENT)
 	$(VPY) doc/figures/passivity_plot.py doc/figures/delay_model.json doc/figures/delay_model.png
 	$(VPY) doc/figures/arm_contact.py doc/figures/arm_contact.png
 	PYTHONPATH=test $(VPY) doc/figures/teleop_quality_plot.py doc/figures/teleop_quality.png
+	PYTHONPATH=test $(VPY) doc/figures/tapping_plot.py doc/figures/tapping.png
 
 # Figures, not tests: each prints a table (loop and link also write JSON). Each runs as a module
 # from here, which imports this checkout's package.

@@ -10,12 +10,14 @@ counts, 1 % loss and 5 ms of jitter each way): five touches of the table, each a
 past it and back up 20 mm, with the driver's force_mode direct, model or auto; the table's
 stiffness 1000, 2500 or 5000 N/m behind the Panda's 1000 N/m; and a table that moves 10 mm
 down before the third touch. Per cell, over the touches the targets are for (from the second;
-on the moved table from the fourth): the master's stop against where the stiffness possible
-(the arm's in series with the table's, clipped to the renderable wall) would hold the table's
-force, the peak-to-peak in the hold, the stiffness felt over the possible, the force felt over
-the table's, the largest step of the force felt in one millisecond; over every touch the
-largest force felt while master and hand are above the table (drag); of the first touch the
-table's largest force and how long after the arm the master first felt 1 N. Figures, no
+on the moved table from the fourth): how far past the table the master stopped (the largest),
+and how far that is from where a wall of the stiffness possible (the arm's in series with the
+table's, clipped to the renderable wall) at the table's place would hold the table's force, the
+peak-to-peak in the hold, the stiffness felt over the possible, the force felt over the
+table's, the largest step of the force felt in one millisecond; the largest force felt while
+master and hand are above the table (drag) from the second touch on, but on the moved table's
+first touch, whose force felt above the table is the stale model's, apart; of the first touch
+the table's largest force and how long after the arm the master first felt 1 N. Figures, no
 asserts; the same on a busy machine. `PYTHONPATH=test python -m benchmarks.tapping`.
 """
 import argparse
@@ -28,25 +30,32 @@ from harness.teleop_loop import Session, Tapping, tapping_figures
 
 COLUMNS = (('rtt ms', 'round_trip_ms', '{:.0f}'), ('table N/m', 'table_stiffness', '{:.0f}'),
            ('mode', 'force_mode', '{}'), ('moved', 'moved', '{}'),
-           ('possible N/m', 'possible', '{:.0f}'),
+           ('possible N/m', 'possible', '{:.0f}'), ('stop mm', 'stop_mm', '{:.1f}'),
            ('stop error mm', 'stop_error_mm', '{:.2f}'), ('p-p mm', 'pp_mm', '{:.2f}'),
            ('felt/possible', 'stiffness_ratio', '{:.2f}'),
            ('felt/table', 'force_ratio', '{:.2f}'), ('step N', 'force_step', '{:.2f}'),
-           ('drag N', 'drag', '{:.2f}'), ('1st: table N', 'first_table_force', '{:.1f}'),
+           ('drag N', 'drag', '{:.2f}'), ('moved: stale N', 'stale_force', '{:.1f}'),
+           ('1st: table N', 'first_table_force', '{:.1f}'),
            ('1st: felt after ms', 'first_felt_after_ms', '{:.0f}'))
 
 
 def row(session, tapping):
     """Return one cell's figures, in the table's units."""
     touches, run = tapping_figures(session, tapping)
-    first_counted = 4 if tapping.moved_before else 2
-    counted = touches[first_counted - 1:]
+    return {'round_trip_ms': session.round_trip_ms, 'table_stiffness': session.table_stiffness,
+            'force_mode': session.force_mode, 'moved_before': tapping.moved_before,
+            **summary(touches, run, tapping.moved_before), 'touches': touches, 'run': run}
+
+
+def summary(touches, run, moved_before):
+    """Return the table's figures of a cell's touches and run."""
+    counted = touches[(moved_before + 1 if moved_before else 2) - 1:]
     possible = run['possible_stiffness']
-    drags = [touch['drag'] for touch in touches if not math.isnan(touch['drag'])]
+    drags = [touch['drag'] for number, touch in enumerate(touches, 1)
+             if number > 1 and number != moved_before and not math.isnan(touch['drag'])]
     return {
-        'round_trip_ms': session.round_trip_ms, 'table_stiffness': session.table_stiffness,
-        'force_mode': session.force_mode, 'moved': 'yes' if tapping.moved_before else 'no',
-        'possible': possible,
+        'moved': 'yes' if moved_before else 'no', 'possible': possible,
+        'stop_mm': 1e3 * max(t['master_past'] for t in counted),
         'stop_error_mm': 1e3 * max(abs(t['master_past'] - t['table_force'] / possible)
                                    for t in counted),
         'pp_mm': 1e3 * max(t['master_pp'] for t in counted),
@@ -54,9 +63,9 @@ def row(session, tapping):
         'force_ratio': min(t['felt_force'] / t['table_force'] for t in counted),
         'force_step': max(t['force_step'] for t in counted),
         'drag': max(drags) if drags else math.nan,
+        'stale_force': touches[moved_before - 1]['drag'] if moved_before else math.nan,
         'first_table_force': touches[0]['max_table_force'],
-        'first_felt_after_ms': 1e3 * (run['master_first_force'] - run['arm_first_force']),
-        'touches': touches, 'run': run}
+        'first_felt_after_ms': 1e3 * (run['master_first_force'] - run['arm_first_force'])}
 
 
 def main(argv=None):
@@ -71,7 +80,15 @@ def main(argv=None):
     parser.add_argument('--moved', choices=('no', 'yes', 'both'), default='both',
                         help='the table moves 10 mm down before the third touch')
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
+    parser.add_argument('--table-of', type=pathlib.Path,
+                        help='print the table of the rows a run wrote with --json; run none')
     args = parser.parse_args(argv)
+    if args.table_of:
+        print(' | '.join(title for title, _, _ in COLUMNS))
+        for cell in json.loads(args.table_of.read_text())['rows']:
+            cell.update(summary(cell['touches'], cell['run'], cell['moved_before']))
+            print(' | '.join(form.format(cell[key]) for _, key, form in COLUMNS))
+        return 0
     moves = {'no': (0,), 'yes': (3,), 'both': (0, 3)}[args.moved]
     print(' | '.join(title for title, _, _ in COLUMNS), flush=True)
     rows = []

@@ -28,6 +28,7 @@ import os
 from ament_index_python.packages import (
     get_package_prefix, get_package_share_directory, PackageNotFoundError)
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.core.force_mode import ForceMode
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.nodes.parameters import launch_argument, ParameterError
 from kraft_master_driver.simulation.master.operators import OPERATORS
@@ -42,8 +43,10 @@ from launch_ros.actions import Node
 PACKAGE = 'kraft_master_driver'
 ARM_SETS = {'right': ('right',), 'left': ('left',), 'both': ('right', 'left')}
 BOOLEANS = ('true', 'false')
+FORCE_MODES = tuple(ForceMode)
 ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
-             'force_enabled', 'contact_damping', 'rate_command', 'crtk', 'sim_operator', 'rsp')
+             'force_enabled', 'force_mode', 'contact_damping', 'rate_command', 'crtk',
+             'sim_operator', 'rsp')
 # ros2 launch's own options (--launch-prefix), which it hands over as launch arguments.
 LAUNCH_OPTIONS = ('launch-prefix', 'launch-prefix-filter')
 # The arguments that are the value of the driver's parameter of the same name.
@@ -159,7 +162,8 @@ def arguments(**defaults):
     values = {'arms': 'right', 'right_port': '/dev/ttyUSB0', 'left_port': '/dev/ttyUSB1',
               'right_params_file': os.path.join(config, 'right_arm.yaml'),
               'left_params_file': os.path.join(config, 'left_arm.yaml'),
-              'force_enabled': 'false', 'contact_damping': '0.0', 'rate_command': 'false',
+              'force_enabled': 'false', 'force_mode': 'auto', 'contact_damping': '0.0',
+              'rate_command': 'false',
               'crtk': 'false',
               'sim_operator': 'hold', 'rsp': 'false', **defaults}
     return {argument.name: argument for argument in (
@@ -172,6 +176,9 @@ def arguments(**defaults):
                                             'kraft_master_calibrate wrote.'),
         declare(values, 'force_enabled', "The driver's force output enabled at start-up.",
                 BOOLEANS),
+        declare(values, 'force_mode', "The driver's force_mode: direct (the arm's wrench), "
+                                      "model (the arm's contact model, rendered locally) or "
+                                      'auto (chosen by the measured round trip).', FORCE_MODES),
         declare(values, 'contact_damping', "The driver's contact_damping (s/m): damping of the "
                                            'wrist per newton of the force reflected '
                                            "(teleop.launch.py: empty takes the arm model's)."),
@@ -186,14 +193,14 @@ def arguments(**defaults):
 
 
 def arm_nodes(arm, params_file, port, force_enabled, sim_operator, rate_command, rsp,
-              crtk=False, contact_damping=0.0):
+              crtk=False, contact_damping=0.0, force_mode='auto'):
     """Return the driver of `arm` and, if `rsp`, its robot_state_publisher."""
     nodes = [Node(
         package=PACKAGE, executable='kraft_master_node', namespace=arm, output='screen',
         on_exit=end_launch_if_failed, parameters=[
             params_file,
             {'port': port, 'force_enabled_at_start': force_enabled,
-             'contact_damping': contact_damping,
+             'contact_damping': contact_damping, 'force_mode': force_mode,
              'sim_operator': sim_operator, 'rate_command_enabled': rate_command,
              'crtk_names': crtk, **driver_names(arm)},
         ])]
@@ -221,7 +228,7 @@ def _nodes(value):
         nodes += arm_nodes(arm, params_files[arm], value(f'{arm}_port'),
                            value('force_enabled') == 'true', value('sim_operator'),
                            value('rate_command') == 'true', rsp, value('crtk') == 'true',
-                           parameters['contact_damping'])
+                           parameters['contact_damping'], value('force_mode'))
     return nodes
 
 

@@ -30,7 +30,8 @@ PACKAGE = DRIVER.PACKAGE
 ARM_MODELS = {'point_mass': 'kraft_master_slave_sim', 'panda': 'kraft_master_arm_sim'}
 MODES = ('pose', 'twist')
 ARGUMENTS = ('arms', 'right_port', 'left_port', 'right_params_file', 'left_params_file',
-             'arm_model', 'mode', 'enable', 'force_enabled', 'contact_damping', 'rate_command',
+             'arm_model', 'mode', 'enable', 'force_enabled', 'force_mode', 'contact_damping',
+             'rate_command',
              'sim_operator', 'rsp')
 REFUSED = {'crtk': "the driver's CRTK topics measured_cp and measured_js would be the simulated "
                    "arm's, which the bridge reads; kraft_master.launch.py takes it"}

@@ -8,7 +8,7 @@ never raise out of cycle(): an OSError/SerialException, or too many consecutive 
 mark the link down and close the port (after an attempt to write zero torques); later cycles
 reopen it with exponential backoff. Zero torques are written before every close.
 """
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 import math
 import os
 import select
@@ -58,6 +58,38 @@ class CycleResult(NamedTuple):
     receive_ns: int  # time.time_ns() when the reply completed
     round_trip_s: float  # from just before the write to the reply's last byte
     commanded_nm: tuple[float, ...]  # the five torques actually sent (after clamping), N*m
+
+
+def torque_counts(torques_nm: Iterable[float], torque_scale: Sequence[float],
+                  torque_limit: Sequence[int]) -> tuple[tuple[int, ...], bool, bool]:
+    """
+    Return (counts, clamped, nonfinite) for five torques in N*m (actuator axes 1..5).
+
+    counts = round(scale * torque) clamped to +-limit, a NaN or infinite torque giving 0;
+    clamped and nonfinite tell whether any axis was clamped or was not finite.
+    """
+    try:
+        if isinstance(torques_nm, (str, bytes)):
+            raise TypeError
+        values = [float(value) for value in torques_nm]
+    except (TypeError, ValueError):
+        raise ValueError(f'torques_nm must be {AXIS_COUNT} numbers (N*m), '
+                         f'got {torques_nm!r}') from None
+    if len(values) != AXIS_COUNT:
+        raise ValueError(f'torques_nm must be {AXIS_COUNT} numbers (N*m), got {len(values)}')
+    counts = []
+    clamped = nonfinite = False
+    for value, scale, limit in zip(values, torque_scale, torque_limit):
+        if not math.isfinite(value):
+            nonfinite = True
+            counts.append(0)
+            continue
+        count = round(value * scale)
+        if count > limit or count < -limit:
+            clamped = True
+            count = limit if count > 0 else -limit
+        counts.append(count)
+    return tuple(counts), clamped, nonfinite
 
 
 class KmcDevice:
@@ -153,36 +185,6 @@ class KmcDevice:
         """Zero the torques and close."""
         self.close()
 
-    def command_counts(self, torques_nm: Iterable[float]) -> tuple[tuple[int, ...], bool, bool]:
-        """
-        Return (counts, clamped, nonfinite) for five torques in N*m (actuator axes 1..5).
-
-        counts = round(scale * torque) clamped to +-limit, a NaN or infinite torque giving 0;
-        clamped and nonfinite tell whether any axis was clamped or was not finite.
-        """
-        try:
-            if isinstance(torques_nm, (str, bytes)):
-                raise TypeError
-            values = [float(value) for value in torques_nm]
-        except (TypeError, ValueError):
-            raise ValueError(f'torques_nm must be {AXIS_COUNT} numbers (N*m), '
-                             f'got {torques_nm!r}') from None
-        if len(values) != AXIS_COUNT:
-            raise ValueError(f'torques_nm must be {AXIS_COUNT} numbers (N*m), got {len(values)}')
-        counts = []
-        clamped = nonfinite = False
-        for value, scale, limit in zip(values, self.torque_scale, self.torque_limit):
-            if not math.isfinite(value):
-                nonfinite = True
-                counts.append(0)
-                continue
-            count = round(value * scale)
-            if count > limit or count < -limit:
-                clamped = True
-                count = limit if count > 0 else -limit
-            counts.append(count)
-        return tuple(counts), clamped, nonfinite
-
     def cycle(self, torques_nm: Iterable[float]) -> CycleResult | None:
         """
         Write the torques (N*m, axes 1..5) and read the matching pot frame: send + receive.
@@ -201,7 +203,8 @@ class KmcDevice:
         the write failed (a link fault). A command still waiting for its reply is forgotten:
         its reply, if it comes, is counted stale. Raises as cycle().
         """
-        counts, clamped, nonfinite = self.command_counts(torques_nm)
+        counts, clamped, nonfinite = torque_counts(torques_nm, self.torque_scale,
+                                                   self.torque_limit)
         with self._lock:
             if not self._opened:
                 raise LinkError(f'{self.port}: device is closed; call open() first')

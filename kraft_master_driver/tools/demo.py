@@ -345,7 +345,7 @@ def _stop_on_signal(*_):
 
 
 def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mujoco',
-                force_mode='direct'):
+                force_mode='auto'):
     """
     Run the processes for `duration` s once all are up (or until Ctrl-C), showing them.
 
@@ -458,9 +458,9 @@ def main(argv=None):
                              'emulator')
     parser.add_argument('--passivity', choices=('on', 'off'), default='off',
                         help='time-domain passivity at both ends (default off)')
-    parser.add_argument('--force-mode', choices=tuple(ForceMode), default='direct',
-                        help="what the operator feels: 'direct' (default), the arm's wrench; "
-                             "'model', the arm's contact model rendered by the driver; 'auto', "
+    parser.add_argument('--force-mode', choices=tuple(ForceMode), default='auto',
+                        help="what the operator feels: 'direct', the arm's wrench; 'model', the "
+                             "arm's contact model rendered by the driver; 'auto' (default), "
                              'chosen by the measured round trip (doc/force-feedback.md)')
     parser.add_argument('--arm', choices=('mujoco', 'point-mass'), default='mujoco',
                         help="the simulated arm: 'mujoco' (default), the Franka Panda on its "

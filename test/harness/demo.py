@@ -79,11 +79,11 @@ def session_processes(session_id):
 class Demo:
     """The demo module run as `make demo` runs it, on a DDS domain of its own, output piped."""
 
-    def __init__(self, duration, sigint_ignored=False, arm=None):
+    def __init__(self, duration, sigint_ignored=False, arm=None, force_mode=None):
         """
         Start recording, then the demo (`sigint_ignored`: as a background job); read it.
 
-        `arm`: the demo's --arm option, or None for its default.
+        `arm`, `force_mode`: the demo's --arm and --force-mode options, or None for its default.
         """
         domain_id = next_domain_id()
         self.recorder = Recorder(domain_id)
@@ -91,7 +91,8 @@ class Demo:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONFAULTHANDLER='1')
         command = [sys.executable, '-m', 'kraft_master_driver.tools.demo',
-                   '--duration', str(duration), *(['--arm', arm] if arm else [])]
+                   '--duration', str(duration), *(['--arm', arm] if arm else []),
+                   *(['--force-mode', force_mode] if force_mode else [])]
         if sigint_ignored:
             command = ['sh', '-c', 'trap "" INT; exec "$@"', 'sh', *command]
         command = [*AT_A_TERMINAL, *command]

@@ -566,6 +566,7 @@ def test_cli_speaks_the_frame_it_is_given():
         assert process.wait(timeout=20) == 0
 
 
+@pytest.mark.process
 def test_cli_refuses_a_bad_frame_description_in_one_line(tmp_path):
     bad = tmp_path / 'bad_frame.yaml'
     bad.write_text('name: bad\n')
