@@ -76,7 +76,7 @@ class RampedForce:
 
     def wrench(self, sensed: Optional[Sensed], force_feedback: bool, base_rotation: Array,
                now: float) -> Array:
-        """Return the master's wrench (6, master base frame) of what was sensed (None: zeros)."""
+        """Return the master's wrench of what was sensed (6, master base frame; None: zeros)."""
         if self.ramp is not None and self.ramp.weight(now) == 1.0:
             self.ramp = None
         wrench = _ramped(self.path, force_feedback, base_rotation, self.ramp, sensed, now)
