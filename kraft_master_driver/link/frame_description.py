@@ -10,7 +10,7 @@ the fault. The built-in descriptions live in the frames/ directory beside this m
 from dataclasses import dataclass
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from kraft_master_driver.core.calibration import POT_COUNT, yaml_fault
 from kraft_master_driver.link.checksums import (
@@ -19,7 +19,8 @@ import yaml
 
 AXIS_COUNT = 5
 FRAMES_DIRECTORY = Path(__file__).parent / 'frames'
-BYTE_ORDERS = ('little', 'big')
+ByteOrder = Literal['little', 'big']  # what int.to_bytes and int.from_bytes take
+BYTE_ORDERS: tuple[ByteOrder, ...] = ('little', 'big')
 FIELD_WIDTHS = (1, 2, 4)
 POT_BITS = (10, 12, 16)
 LENGTH_COUNTS = ('frame', 'following')
@@ -47,7 +48,7 @@ class Field:
     offset: int
     width: int
     signed: bool
-    order: str
+    order: ByteOrder
 
     @property
     def end(self) -> int:
@@ -227,7 +228,8 @@ class _Reader:
                                  LENGTH_COUNTS, 'length kind')
             length_value = size if counts == 'frame' else size - length.end
         values = self.value_fields(frame[values_key], f'{key}.{values_key}', count)
-        status, status_bits = None, ()
+        status: Field | None = None
+        status_bits: tuple[tuple[int, str], ...] = ()
         if 'status' in frame:
             status = self.field(frame['status'], f'{key}.status', (1, 2), ('bits',))
             status_bits = self.status_bits(frame['status'].get('bits', {}), f'{key}.status.bits',
@@ -236,7 +238,8 @@ class _Reader:
             if 'checksum' in frame else None
         spans = [(0, len(header), f'{key}.header')] + [
             (field.offset, field.end, field.name)
-            for field in (sequence, length, *values, status, checksum and checksum.field)
+            for field in (sequence, length, *values, status,
+                          checksum.field if checksum is not None else None)
             if field is not None]
         for start, end, name in spans:
             if end > size:

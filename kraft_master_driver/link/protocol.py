@@ -23,10 +23,11 @@ from collections.abc import Callable, Sequence
 import operator
 import os
 import struct
-from typing import Generic, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 from kraft_master_driver.link.frame_description import (
-    builtin_names, builtin_path, Field, FrameDescription, FrameLayout, load_description)
+    builtin_names, builtin_path, ByteOrder, Field, FrameDescription, FrameLayout,
+    load_description)
 
 AXIS_COUNT = 5
 INT16_MAX = 32767
@@ -69,6 +70,8 @@ class TorqueCommand(NamedTuple):
 
 # What a FrameDecoder yields: PotFrame on the host side, TorqueCommand on the device side.
 Frame = TypeVar('Frame', PotFrame, TorqueCommand)
+# parse(buffer, offset): the frame at buffer[offset:], or the error kind BAD_CRC or OUT_OF_RANGE.
+FrameParser = Callable[[bytes | bytearray, int], Frame | str]
 
 
 class FrameDecoder(Generic[Frame]):
@@ -83,7 +86,7 @@ class FrameDecoder(Generic[Frame]):
     """
 
     def __init__(self, header: bytes, frame_size: int,
-                 parse: Callable[[bytes | bytearray, int], Frame | str]) -> None:
+                 parse: FrameParser[Frame]) -> None:
         """
         Decode frames of frame_size bytes starting with header (bytes).
 
@@ -95,7 +98,7 @@ class FrameDecoder(Generic[Frame]):
             raise ValueError('header must be non-empty and shorter than frame_size')
         self._header = bytes(header)
         self._size = frame_size
-        self._parse: Callable[[bytes | bytearray, int], Frame | str] = parse
+        self._parse: FrameParser[Frame] = parse
         self._buffer = bytearray()
         self.frames_decoded = 0
         self.errors = dict.fromkeys(ERROR_KINDS, 0)
@@ -215,12 +218,29 @@ _STATUS_BITS = {'amplifiers_on': STATUS_AMPLIFIERS_ENABLED,
                 'command_timeout': STATUS_COMMAND_TIMEOUT}
 _DRIVER_STATUS_BITS = 4  # bits 0..3 of a decoded status are the STATUS_* meanings
 
+_T = TypeVar('_T')
+# What a frame's struct runs unpack, in offset order: the header's bytes, then the fields' ints.
+# struct's own type: the format string, not the type system, decides each item's type.
+_Fields = tuple[Any, ...]
+# check(buffer, offset, fields): True if the frame's checksum and length byte hold.
+_Check = Callable[[bytes | bytearray, int, _Fields], bool]
 
-def _picker(indices: Sequence[int]) -> Callable[[Sequence[object]], tuple[object, ...]]:
+
+class _Picker(Protocol):
+    """pick(items): the items at some fixed indices of a sequence, always as a tuple."""
+
+    def __call__(self, items: Sequence[_T], /) -> tuple[_T, ...]:
+        """Return the items at the indices, in the indices' order."""
+
+
+def _picker(indices: Sequence[int]) -> _Picker:
     """Return a function that takes the items at indices of a sequence, always as a tuple."""
     if len(indices) == 1:
         index = indices[0]
-        return lambda items: (items[index],)
+
+        def pick_one(items: Sequence[_T], /) -> tuple[_T, ...]:
+            return (items[index],)
+        return pick_one
     return operator.itemgetter(*indices)
 
 
@@ -240,7 +260,7 @@ class _Packing:
                                      layout.status, checksum) if field is not None]
         by_offset = sorted(range(len(slots)), key=lambda slot: slots[slot].offset)
         self.slot_index = [by_offset.index(slot) for slot in range(len(slots))]
-        runs: list[tuple[int, str | None, list[int]]] = []  # (start, byte order, slots)
+        runs: list[tuple[int, ByteOrder | None, list[int]]] = []  # (start, byte order, slots)
         for slot in by_offset:
             field = slots[slot]
             order = field.order if field.width > 1 and field is not header else None
@@ -249,7 +269,7 @@ class _Packing:
                 runs[-1] = (start, run_order or order, members + [slot])
             else:
                 runs.append((field.offset, order, [slot]))
-        self.runs = []
+        self.runs: list[tuple[int, struct.Struct, _Picker]] = []  # (start, struct, pick)
         for number, (start, order, members) in enumerate(runs):
             codes, position = ['<' if order != 'big' else '>'], start
             for slot in members:
@@ -261,6 +281,7 @@ class _Packing:
             if number == len(runs) - 1:
                 codes.append('x' * (layout.size - position))
             self.runs.append((start, struct.Struct(''.join(codes)), _picker(members)))
+        self.unpack: Callable[[bytes | bytearray, int], _Fields]
         if len(self.runs) == 1:
             start, single, _ = self.runs[0]
             self.unpack = lambda buffer, offset: single.unpack_from(buffer, offset + start)
@@ -278,8 +299,8 @@ class _Packing:
             run.pack_into(frame, start, *pick(values))
         return frame
 
-    def _unpack_runs(self, buffer: bytes | bytearray, offset: int) -> tuple[object, ...]:
-        values: tuple[object, ...] = ()
+    def _unpack_runs(self, buffer: bytes | bytearray, offset: int) -> _Fields:
+        values: _Fields = ()
         for start, run, _ in self.runs:
             values += run.unpack_from(buffer, offset + start)
         return values
@@ -352,7 +373,7 @@ class FrameCodec(Codec):
         frame = packing.pack(slots)
         field = checksum.field
         value = checksum.function(frame[checksum.start:checksum.end])
-        frame[field.offset:field.end] = value.to_bytes(field.width, field.order)  # type: ignore
+        frame[field.offset:field.end] = value.to_bytes(field.width, field.order)
         return bytes(frame)
 
     def reply_decoder(self) -> FrameDecoder[PotFrame]:
@@ -363,7 +384,7 @@ class FrameCodec(Codec):
         """Return a new FrameDecoder yielding TorqueCommand."""
         return FrameDecoder(self._command.header, self.command_size, self._command_parser())
 
-    def _checker(self, layout: FrameLayout, index: list[int]) -> Callable[..., bool]:
+    def _checker(self, layout: FrameLayout, index: list[int]) -> _Check:
         """Return check(buffer, offset, fields): True if the frame's checksum and length hold."""
         checksum, length = layout.checksum, layout.length
         last = len(index) - 1
@@ -375,18 +396,20 @@ class FrameCodec(Codec):
         function, start, end, checksum_index = (
             checksum.function, checksum.start, checksum.end, index[last])
 
-        def check(buffer: bytes | bytearray, offset: int, fields: tuple[object, ...]) -> bool:
+        def check(buffer: bytes | bytearray, offset: int, fields: _Fields) -> bool:
             return function(buffer[offset + start:offset + end]) == fields[checksum_index] and (
                 length is None or fields[length_index] == length_value)
         return check
 
-    def _reply_parser(self) -> Callable[[bytes | bytearray, int], PotFrame | str]:
+    def _reply_parser(self) -> FrameParser[PotFrame]:
         """Return parse(buffer, offset): the PotFrame there, BAD_CRC or OUT_OF_RANGE."""
         layout, packing = self._reply, self._reply_packing
         index = packing.slot_index
         unpack, check = packing.unpack, self._checker(layout, index)
         first = 1 + (layout.sequence is not None) + (layout.length is not None)
-        pots_of = _picker(index[first:first + len(layout.values)])
+        # The value fields' struct codes are integer codes: what they unpack is int.
+        pots_of: Callable[[_Fields], tuple[int, ...]] = _picker(
+            index[first:first + len(layout.values)])
         sequence_index = index[1] if layout.sequence is not None else None
         status_index = index[first + len(layout.values)] if layout.status is not None else None
         to_driver = self._status_to_driver
@@ -402,15 +425,16 @@ class FrameCodec(Codec):
             return PotFrame(
                 None if sequence_index is None else fields[sequence_index], pots,
                 0 if status_index is None else to_driver[fields[status_index]])
-        return parse  # type: ignore[return-value]
+        return parse
 
-    def _command_parser(self) -> Callable[[bytes | bytearray, int], TorqueCommand | str]:
+    def _command_parser(self) -> FrameParser[TorqueCommand]:
         """Return parse(buffer, offset): the TorqueCommand there or BAD_CRC."""
         layout, packing = self._command, self._command_packing
         index = packing.slot_index
         unpack, check = packing.unpack, self._checker(layout, index)
         first = 1 + (layout.sequence is not None) + (layout.length is not None)
-        counts_of = _picker(index[first:first + len(layout.values)])
+        counts_of: Callable[[_Fields], tuple[int, ...]] = _picker(
+            index[first:first + len(layout.values)])
         sequence_index = index[1] if layout.sequence is not None else None
         sign = self._sign
 
@@ -422,7 +446,7 @@ class FrameCodec(Codec):
             return TorqueCommand(
                 None if sequence_index is None else fields[sequence_index],
                 tuple(map(operator.mul, counts, sign)) if sign else counts)
-        return parse  # type: ignore[return-value]
+        return parse
 
 
 def _status_tables(layout: FrameLayout) -> tuple[tuple[int, ...], tuple[int, ...], int]:
@@ -465,9 +489,15 @@ class KraftDefaultCodec(FrameCodec):
         super().__init__(load_description(builtin_path(DEFAULT_CODEC)))
 
 
+def _builtin_codec(name: str) -> Callable[[], Codec]:
+    """Return a function that makes a new FrameCodec of the built-in description called name."""
+    def make() -> Codec:
+        return FrameCodec(load_description(builtin_path(name)))
+    return make
+
+
 CODECS: dict[str, Callable[[], Codec]] = {
-    name: (KraftDefaultCodec if name == DEFAULT_CODEC
-           else lambda name=name: FrameCodec(load_description(builtin_path(name))))
+    name: KraftDefaultCodec if name == DEFAULT_CODEC else _builtin_codec(name)
     for name in builtin_names()}
 
 
