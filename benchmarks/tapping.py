@@ -15,7 +15,8 @@ and how far that is from where a wall of the stiffness possible (the arm's in se
 table's, clipped to the renderable wall) at the table's place would hold the table's force, the
 peak-to-peak in the hold, the stiffness felt over the possible, the force felt over the
 table's, the largest step of the force felt in one millisecond; the largest force felt while
-master and hand are above the table (drag) from the second touch on, but on the moved table's
+the master is above the table (drag, or a contact of the past) from the second touch on, but on
+the moved table's
 first touch, whose force felt above the table is the stale model's, apart; of the first touch
 the table's largest force and how long after the arm the master first felt 1 N. Figures, no
 asserts; the same on a busy machine. `PYTHONPATH=test python -m benchmarks.tapping`.

@@ -73,8 +73,13 @@ def bridge_settings(arm_model):
         # MuJoCo and the demo's settings only where the Panda is asked for.
         from kraft_master_driver.tools.demo import MUJOCO_BRIDGE
         return MUJOCO_BRIDGE
-    # The point mass's wall holds it short of its command: no tracking fault for that.
-    return {'max_tracking_error': 1.0}
+    # The point mass's wall holds it short of its command: no tracking fault for that. A
+    # simulated arm shares the machine with the whole session: a stale input is still a FAULT,
+    # but after the demo's timeouts (2 s), as the Panda's, not a real arm's 0.1 s, which a
+    # loaded machine overran in 6 of 8 launches.
+    from kraft_master_driver.tools.demo import BRIDGE
+    timeouts = {name: BRIDGE[name] for name in ('master_timeout', 'arm_timeout', 'ft_timeout')}
+    return {**timeouts, 'max_tracking_error': 1.0}
 
 
 def pair_nodes(arm, mode, enable, arm_model):

@@ -348,10 +348,10 @@ def tapping_figures(session=Session(), tapping=Tapping(), window=1.0):
     Per touch, over the last `window` s of its hold: the master's mean past the table and its
     peak-to-peak, the table's force and the force felt (means), the stiffness felt (felt over
     past); over the touch: the largest step of the force felt from one millisecond to the next,
-    and the largest force felt while the master and the hand's tip are both above the table
-    (drag), and the table's largest force. The run: the stiffness possible (the arm's in series
-    with the table's, clipped to the master's renderable wall), and when the arm and then the
-    master first felt 1 N.
+    and the largest force felt while the master is above the table (drag, or a contact that is
+    not there any more), and the table's largest force. The run: the stiffness possible (the
+    arm's in series with the table's, clipped to the master's renderable wall), and when the
+    arm and then the master first felt 1 N.
     """
     log, master, bounds = tap(session, tapping)
     touches = []
@@ -360,7 +360,7 @@ def tapping_figures(session=Session(), tapping=Tapping(), window=1.0):
     for first, last in bounds:
         rows = log[first:last]
         hold = rows[hold_end - window_rows:hold_end]
-        free = (rows[:, 1] < -FREE_SPACE) & (rows[:, 3] < -FREE_SPACE)
+        free = rows[:, 1] < -FREE_SPACE
         past, felt = hold[:, 1].mean(), hold[:, 5].mean()
         touches.append({
             'master_past': float(past), 'master_pp': float(np.ptp(hold[:, 1])),
