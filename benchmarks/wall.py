@@ -97,7 +97,7 @@ def on_the_wall(stiffness, rate_hz):
                                  cartesian_velocity=twist,
                                  model=feedback.force((pose[3], pose[7], pose[11]),
                                                       twist[:3], now_ns))
-        feedback.applied(out.state == ACTIVE)
+        feedback.applied(out.model_share if out.state == ACTIVE else 0.0)
         device.motor[:5] = list(out.actuator)
         device.step(period, target)
         if step >= steps - round(WINDOW * rate_hz):

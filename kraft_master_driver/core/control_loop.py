@@ -296,7 +296,7 @@ class ControlLoop:
                 pose=None if centre is None else self.pose(), centre=centre,
                 cartesian_velocity=velocity, port=self.master_port, model=model_force)
             if model is not None:
-                model.applied(output.state == ACTIVE)
+                model.applied(output.model_share if output.state == ACTIVE else 0.0)
             if output.state == STALE and self._last_force_state != STALE:
                 self.log.warning(
                     f'no wrench for {self.force.wrench_timeout:g} s (wrench_timeout): '

@@ -38,7 +38,7 @@ class ModeSettings(NamedTuple):
     mode: ForceMode = ForceMode.DIRECT
     model_above: float = 0.05
     direct_below: float = 0.03
-    switch_time: float = 0.5
+    switch_time: float = 0.1
 
 
 class ModeSelector:
@@ -109,9 +109,9 @@ class ModelFeedback:
         self.share = self.selector.weight(now_ns)
         return self.renderer.force(position, velocity, now_ns), self.share
 
-    def applied(self, active: bool) -> None:
-        """Note whether this cycle's torques carried the force (not zero for a doubt)."""
-        self.renderer.applied(self.share if active else 0.0)
+    def applied(self, share: float) -> None:
+        """Note the model's share of the force this cycle's torques carried (0: none)."""
+        self.renderer.applied(share)
 
     def idle(self) -> None:
         """Note a cycle without a pot frame: the wall's books see no motion and no force."""

@@ -66,7 +66,8 @@ class TorqueOutput(NamedTuple):
 
     actuator: 5 torques in N*m, axes 1..5, the exact values to send; joint: the joint torques
     th1..th6 they amount to (th6 = 0); state: one of STATES; saturated: the torques were scaled
-    down to respect torque_limits; tag: the tag of the wrench used, or None.
+    down to respect torque_limits; tag: the tag of the wrench used, or None; model_share: the
+    contact model's share of the force sent (0..1).
     """
 
     actuator: tuple[float, ...]
@@ -74,6 +75,7 @@ class TorqueOutput(NamedTuple):
     state: str
     saturated: bool
     tag: object
+    model_share: float = 0.0
 
 
 class Settings(NamedTuple):
@@ -261,7 +263,8 @@ class ForceReflection:
         adds its damper (MasterPort.damped), after contact_damping.
         model: the contact model's force (N, 3, base frame; core/contact_rendering.py) and its
         share of the force (0..1, core/force_mode.py): the wrench is the direct one times
-        (1 - share) plus force_scale times the model's times share, then the centre terms.
+        (1 - share) plus force_scale times the model's times share, then the centre terms; with
+        no direct wrench to give (none yet, stale, refused) the model's alone.
         """
         hot = self._hot
         settings = hot.settings
@@ -269,6 +272,8 @@ class ForceReflection:
             return self._idle(DISABLED, port, now_ns)
         share = 0.0 if model is None else model[1]
         state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, share)
+        if wrench is None and model is not None and any(model[0]):
+            share = 1.0  # no direct force to blend with: the model's alone, not a step to zero
         if share > 0.0:
             assert model is not None
             scaled = share * settings.force_scale
@@ -314,7 +319,7 @@ class ForceReflection:
         t1, t2, t3, t4, t5 = torques
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
         joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)
-        return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, tag)
+        return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, tag, share)
 
     def _direct(self, rotation: Matrix, now_ns: int, cartesian_velocity: Vector | None,
                 port: Port | None, share: float) -> tuple[str, list[float] | None]:

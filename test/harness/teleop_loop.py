@@ -74,6 +74,7 @@ class Session(NamedTuple):
     hold: float = HOLD  # s
     push: float = PUSH  # s the hand takes from above the table to `past` (up to 97 mm/s in 1 s)
     force_mode: str = 'direct'  # the driver's force_mode: direct, model or auto
+    round_trip_changes: tuple = ()  # (s, ms): from then on the link's round trip is this
     table_stiffness: float = Table().stiffness  # N/m
 
 
@@ -157,7 +158,7 @@ class _Master:
         out = self.reflection.compute((pose[0:3], pose[4:7], pose[8:11]), jacobian, now_ns,
                                       cartesian_velocity=twist, port=port,
                                       model=self.feedback.force(position, twist[:3], now_ns))
-        self.feedback.applied(out.state == ACTIVE)
+        self.feedback.applied(out.model_share if out.state == ACTIVE else 0.0)
         self.felt = _felt(theta, out.actuator)
         self.model.motor[:5] = list(out.actuator)
         self.model.step(DT, hand)
@@ -252,6 +253,10 @@ def _simulate(session, phases):
         steps = round(seconds / DT)
         for step in range(steps):
             t = k * DT
+            for at, round_trip_ms in session.round_trip_changes:
+                if abs(t - at) < DT / 2:
+                    to_arm.delay = to_master.delay = (
+                        round_trip_ms / 2.0 + session.latency_ms) / 1e3
             blend = 0.5 - 0.5 * math.cos(math.pi * step / steps)
             wrist = master.cycle(t, (begin + blend * (end - begin)).tolist(), to_arm, to_master)
             _arm_millisecond(k, t, arm, bridge, to_arm, to_master)

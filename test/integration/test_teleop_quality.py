@@ -2,7 +2,8 @@
 # Licensed under the Apache License, Version 2.0
 """A short contact on the MuJoCo Panda in simulated time (harness/teleop_loop.py), no processes."""
 from harness.teleop_loop import (
-    figures, MAX_FORCE, SENT_BOOKS, Session, Tapping, tapping_figures)
+    figures, MAX_FORCE, SENT_BOOKS, Session, tap, Tapping, tapping_figures)
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.slow
@@ -89,3 +90,17 @@ def test_at_500_ms_the_contact_model_renders_the_second_touch_still_stiff_and_wi
     assert run['max_table_force'] < MAX_FORCE
     assert run['master_first_force'] - run['arm_first_force'] <= 0.5 + 0.05
     assert run['wall_balance'] >= 0.0
+
+
+def test_auto_switches_to_the_model_and_back_as_the_round_trip_changes_without_a_step():
+    # A hold in contact; the round trip steps from 0 to 250 ms at 3 s and back at 6 s.
+    session = Session(pot_counts=True, force_mode='auto', table_stiffness=1000.0,
+                      round_trip_changes=((3.0, 250.0), (6.0, 0.0)))
+    log, _, _ = tap(session, Tapping(touches=1, hold=11.0))
+    time, felt, share = log[:, 0], log[:, 5], log[:, 6]
+    assert share[(time > 2.0) & (time < 3.0)].max() == 0.0
+    assert share[(time > 4.0) & (time < 6.0)].min() == 1.0
+    assert share[(time > 11.0) & (time < 11.5)].max() == 0.0
+    blending = np.flatnonzero((share > 0.0) & (share < 1.0))
+    around = np.unique(np.clip(blending[:, None] + np.arange(-20, 21), 0, len(felt) - 2))
+    assert blending.size and np.abs(np.diff(felt))[around].max() <= 0.5

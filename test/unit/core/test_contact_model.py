@@ -177,3 +177,19 @@ def test_with_a_tolerance_the_arm_yields_where_it_presses_harder_than_the_model(
     assert least == pytest.approx(TABLE - 0.002, abs=1e-4)
     sharing.reading(command, np.array([0.0, 0.0, at_two_mm]), Pose(command, np.eye(3)), 10.3)
     assert sharing.floor is None
+
+
+def test_the_force_blends_direct_and_model_and_takes_the_model_alone_without_a_wrench():
+    from kraft_master_driver.core.force_reflection import ACTIVE, ForceReflection
+    from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchInput
+    reflection = ForceReflection(enabled=True)
+    rotation = np.eye(3).tolist()
+    jacobian = np.eye(6).tolist()
+    reflection.hold(WrenchInput((0.0, 0.0, 0.5, 0.0, 0.0, 0.0), BASE_FRAME, 0))
+    half = reflection.compute(rotation, jacobian, 1_000_000, model=((0.0, 0.0, 1.5), 0.5))
+    assert half.state == ACTIVE and half.model_share == 0.5
+    assert half.joint[2] == pytest.approx(1.0)  # half of 0.5 N and half of 1.5 N, th3's column
+    stale = reflection.compute(rotation, jacobian, 1_000_000_000, model=((0.0, 0.0, 1.5), 0.0))
+    assert stale.model_share == 1.0 and stale.joint[2] == pytest.approx(1.5)
+    nothing = reflection.compute(rotation, jacobian, 1_000_000_000, model=((0.0, 0.0, 0.0), 0.0))
+    assert nothing.state != ACTIVE and not any(nothing.actuator)
