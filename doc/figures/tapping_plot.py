@@ -15,10 +15,7 @@ import pathlib
 import sys
 
 from harness.teleop_loop import Session, tap, Tapping
-import matplotlib
-
-matplotlib.use('Agg')
-import matplotlib.pyplot as plt  # noqa: E402, I100
+from teleop_quality_plot import draw  # beside this script
 
 ROUND_TRIPS = (0.0, 250.0, 1000.0)  # ms
 MODES = {'direct (J^T F)': ('direct', '#c0392b'), 'contact model': ('model', '#1f4e79')}
@@ -29,28 +26,11 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('output', type=pathlib.Path)
     args = parser.parse_args(argv)
-    figure, axes = plt.subplots(2, len(ROUND_TRIPS), figsize=(13, 6.5), sharex=True,
-                                sharey='row')
-    for column, round_trip in enumerate(ROUND_TRIPS):
-        for label, (mode, colour) in MODES.items():
-            log, _, _ = tap(Session(round_trip, 0.01, jitter_ms=5.0, pot_counts=True,
-                                    force_mode=mode, table_stiffness=1000.0), Tapping())
-            time = log[:, 0]
-            axes[0, column].plot(time, 1e3 * log[:, 1], color=colour, lw=1, label=label)
-            axes[1, column].plot(time, log[:, 5], color=colour, lw=1, label=f'felt, {label}')
-            axes[1, column].plot(time, log[:, 4], color=colour, lw=0.8, ls=':',
-                                 label=f"table's force, {label}")
-        axes[0, column].set_title(f'{round_trip:.0f} ms round trip')
-        axes[1, column].set_xlabel('time (s)')
-    axes[0, 0].set_ylabel('master past the table (mm)')
-    axes[1, 0].set_ylabel('force (N)')
-    axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=7)
-    for axis in axes.flat:
-        axis.grid(alpha=0.3)
-    figure.suptitle('Five touches, each aiming 15 mm past the table (1000 N/m)')
-    figure.tight_layout()
-    figure.savefig(args.output, dpi=90)
+    runs = {round_trip: [(label, colour, tap(Session(
+        round_trip, 0.01, jitter_ms=5.0, pot_counts=True, force_mode=mode,
+        table_stiffness=1000.0), Tapping())[0]) for label, (mode, colour) in MODES.items()]
+        for round_trip in ROUND_TRIPS}
+    draw(runs, 'Five touches, each aiming 15 mm past the table (1000 N/m)', args.output)
     return 0
 
 

@@ -26,16 +26,16 @@ MODES = {'passivity off (plain J^T F)': ({}, '#c0392b'),
          'passivity on, books the force sent': (SENT_BOOKS, '#1f4e79')}
 
 
-def main(argv=None):
-    """Run the nine sessions and write the figure."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    parser.add_argument('output', type=pathlib.Path)
-    args = parser.parse_args(argv)
-    figure, axes = plt.subplots(2, len(ROUND_TRIPS), figsize=(13, 6.5), sharex=True,
-                                sharey='row')
-    for column, round_trip in enumerate(ROUND_TRIPS):
-        for label, (settings, colour) in MODES.items():
-            log, _, _ = run(Session(round_trip_ms=round_trip, **settings))
+def draw(runs, title, output):
+    """
+    Draw the runs and write the figure to `output`.
+
+    runs: {round trip (ms): [(label, colour, log of teleop_loop)]}, a column each; the top row
+    how far the master is past the table, the bottom one the force felt and the table's.
+    """
+    figure, axes = plt.subplots(2, len(runs), figsize=(13, 6.5), sharex=True, sharey='row')
+    for column, (round_trip, sessions) in enumerate(runs.items()):
+        for label, colour, log in sessions:
             time = log[:, 0]
             axes[0, column].plot(time, 1e3 * log[:, 1], color=colour, lw=1, label=label)
             axes[1, column].plot(time, log[:, 5], color=colour, lw=1, label=f'felt, {label}')
@@ -49,9 +49,20 @@ def main(argv=None):
     axes[1, 0].legend(fontsize=7)
     for axis in axes.flat:
         axis.grid(alpha=0.3)
-    figure.suptitle('The Panda at 1000 N/m, the hand aiming 25 mm past the table')
+    figure.suptitle(title)
     figure.tight_layout()
-    figure.savefig(args.output, dpi=90)
+    figure.savefig(output, dpi=90)
+
+
+def main(argv=None):
+    """Run the nine sessions and write the figure."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('output', type=pathlib.Path)
+    args = parser.parse_args(argv)
+    runs = {round_trip: [(label, colour, run(Session(round_trip_ms=round_trip, **settings))[0])
+                         for label, (settings, colour) in MODES.items()]
+            for round_trip in ROUND_TRIPS}
+    draw(runs, 'The Panda at 1000 N/m, the hand aiming 25 mm past the table', args.output)
     return 0
 
 
