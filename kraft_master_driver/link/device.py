@@ -99,6 +99,7 @@ class KmcDevice:
                  reply_timeout: float = 0.01,
                  torque_scale: Iterable[float] | None = None,
                  torque_limit: Iterable[float] | None = None,
+                 torque_sign: Iterable[int] | None = None,
                  low_latency: bool = False, reconnect_min: float = 0.05,
                  reconnect_max: float = 2.0, timeouts_before_reconnect: int = 25) -> None:
         """
@@ -108,7 +109,10 @@ class KmcDevice:
         protocol.CODECS or the path of a frame description. reply_timeout: seconds to wait for
         each reply. torque_scale: five positive command counts per N*m (axes 1..5; None: the
         codec's). torque_limit: five limits in counts (1 to the largest count the frame holds;
-        None: the codec's). low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is
+        None: the codec's). torque_sign: five signs, 1 or -1 (None: all 1), multiplying each
+        axis's counts on their way to the frame, after the clamp: the torque_signs of a
+        calibration file (kraft_master_calibrate --check-torques); commanded_nm stays in the
+        driver's sense. low_latency: set ASYNC_LOW_LATENCY on Linux serial ports (a failure is
         a warning in last_error, not an error). reconnect_min, reconnect_max: backoff bounds
         (seconds). timeouts_before_reconnect: consecutive timeouts after which the link is
         treated as dead and reopened.
@@ -128,6 +132,10 @@ class KmcDevice:
             lambda v: 1 <= v <= count_limit and v == int(v),
             f'integer counts in 1..{count_limit}')
         self.torque_limit = tuple(int(v) for v in limits)
+        signs = _axis_values('torque_sign', (1,) * AXIS_COUNT if torque_sign is None
+                             else torque_sign, lambda v: v in (1.0, -1.0), '1 or -1')
+        self.torque_sign = tuple(int(v) for v in signs)
+        self._flip = None if set(self.torque_sign) == {1} else self.torque_sign
         self.low_latency = bool(low_latency)
         self.reconnect_min = _positive('reconnect_min', reconnect_min)
         self.reconnect_max = _positive('reconnect_max', reconnect_max)
@@ -215,7 +223,9 @@ class KmcDevice:
             counters['clamped_commands'] += clamped
             counters['nonfinite_commands'] += nonfinite
             sequence = self._next_sequence()
-            command = self.codec.encode_command(sequence, counts)
+            wire_counts = counts if self._flip is None else tuple(
+                count * sign for count, sign in zip(counts, self._flip))
+            command = self.codec.encode_command(sequence, wire_counts)
             assert self._io is not None  # the link is up, so the port is open
             try:
                 if not self.codec.has_sequence:

@@ -104,6 +104,7 @@ class KraftMasterNode(Node):
 
     def _start_device(self):
         """Start the simulator if asked, open the device and start the loop thread."""
+        signs = self._torque_signs()
         port = self.config['port']
         if port == SIM_PORT:
             port = self._start_simulator()
@@ -112,7 +113,7 @@ class KraftMasterNode(Node):
             reply_timeout=self.config['reply_timeout'],
             torque_scale=self._torque_setting('torque_scale'),
             torque_limit=self._torque_setting('torque_command_limit'),
-            low_latency=self.config['low_latency'])
+            torque_sign=signs, low_latency=self.config['low_latency'])
         self.device.open()
         if self.device.link_up and self.device.stats['low_latency_failures']:
             self.get_logger().warning(self.device.last_error)
@@ -165,6 +166,13 @@ class KraftMasterNode(Node):
             return get_codec(self.config['codec'])
         except ValueError as error:
             raise ParameterError(f'parameter codec: {error}') from None
+
+    def _torque_signs(self):
+        """Return the torque_signs parameter; ParameterError if one is not 1 or -1."""
+        signs = tuple(self.config['torque_signs'])
+        if not set(signs) <= {1, -1}:
+            raise ParameterError(f'parameter torque_signs: {list(signs)}: each must be 1 or -1')
+        return signs
 
     def _torque_setting(self, name):
         """Return a torque parameter given for the node, or None: the codec's then."""

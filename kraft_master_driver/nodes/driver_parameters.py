@@ -54,6 +54,10 @@ PARAMETERS = {
                                  "given, the codec's limit (the default shown is "
                                  "kraft-default's).",
                                  low=1, high=32767, length=5),
+    'torque_signs': Spec([1] * 5, 'Sign of each actuator axis 1..5, 1 or -1, multiplying its '
+                         'command counts after the clamp; kraft_master_calibrate '
+                         '--check-torques measures it and writes it into the calibration file.',
+                         low=-1, high=1, length=5),
     'torque_limits': Spec([2.0] * 5, 'Largest actuator torque per axis 1..5 (N*m); above it '
                           'the whole torque vector is scaled down together.',
                           read_only=False, low=0.001, high=100.0, length=5),

@@ -17,8 +17,13 @@ With --csv the tool fits such a CSV instead (for scripts and tests): one row per
 pot, `pot,angle_deg,count,count,...`, pot 1..6, angle_deg of what the pot reads. Lines
 starting with '#' and a first line starting with 'pot' are skipped.
 
-Exit status: 0 calibration written; 1 an error (device, file, fit) or suspicious samples
-(nothing written unless --force); 2 bad command line.
+With --check-torques the tool checks the torque sign and rough scale of each motor axis
+instead (torque_check.py), the operator's hand off the handle, and writes the signs as
+`torque_signs` into the calibration file (--calibration, updated in place unless --out).
+
+Exit status: 0 calibration written; 1 an error (device, file, fit), suspicious samples
+(nothing written unless --force), or a torque check refused, stopped or unsure of a sign
+(nothing written); 2 bad command line.
 """
 import argparse
 import csv
@@ -30,10 +35,13 @@ from typing import NamedTuple
 
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import (
-    ArmCalibration, CalibrationError, POT_COUNT, POT_JOINT, POT_MAX, POT_MEASURES)
+    ArmCalibration, CalibrationError, POT_COUNT, POT_JOINT, POT_MAX, POT_MEASURES,
+    read_parameter_file)
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import CODECS, DEFAULT_CODEC
+from kraft_master_driver.tools import torque_check
 import numpy as np
+import yaml
 
 ZERO_TORQUES = (0.0,) * kinematics.DRIVEN_JOINTS
 SIM_PORT = 'sim'
@@ -420,6 +428,26 @@ def _parser():
                         help="with --port sim: the simulated device's true calibration")
     parser.add_argument('--sim-noise', type=float, default=1.0,
                         help='with --port sim: pot noise, counts (1 sigma, default 1)')
+    check = parser.add_argument_group('torque check (--check-torques)')
+    check.add_argument('--check-torques', action='store_true',
+                       help='hand off the handle: pulse each motor axis 1..5 in turn, say '
+                            'whether its sign agrees with the kinematics and its rough scale, '
+                            'write torque_signs into the calibration file')
+    check.add_argument('--calibration', metavar='YAML',
+                       help='the parameter file of the pot calibration (and any torque_signs, '
+                            'applied while checking); written back with torque_signs unless '
+                            '--out (default: the nominal calibration)')
+    defaults = torque_check.Settings()
+    check.add_argument('--torque', type=float, default=defaults.torque,
+                       help='largest pulse torque (N*m; default %(default)g); pulses start '
+                            'at a quarter of it')
+    check.add_argument('--pulse', type=float, default=defaults.pulse,
+                       help='duration of one pulse, +torque then -torque (s; default '
+                            '%(default)g)')
+    check.add_argument('--max-motion', type=float,
+                       default=math.degrees(defaults.max_motion),
+                       help='a larger motion of any axis zeroes the torques and stops the '
+                            'check (deg; default %(default)g)')
     return parser
 
 
@@ -470,10 +498,116 @@ def _measure(args, stations, out, ask):
     return rows, quit_early
 
 
+# -- torque check ----------------------------------------------------------------------------
+
+
+def _torque_settings(args, parser):
+    """Return the torque_check.Settings of the command line; parser.error if not usable."""
+    if not args.port:
+        parser.error('--check-torques needs --port')
+    defaults = torque_check.Settings()
+    if not 0.0 < args.torque <= 5.0:
+        parser.error('--torque must be within 0..5 N*m')
+    if not 0.0 < args.pulse <= 1.0:
+        parser.error('--pulse must be within 0..1 s')
+    max_motion = math.radians(args.max_motion)
+    if not defaults.min_motion < max_motion <= math.radians(90.0):
+        parser.error(f'--max-motion must be above {math.degrees(defaults.min_motion):g} and '
+                     'at most 90 deg')
+    return defaults._replace(torque=args.torque, pulse=args.pulse, max_motion=max_motion)
+
+
+def _calibration_parameters(args):
+    """Return (the parameters of --calibration or the nominal ones, the signs they apply)."""
+    if args.calibration:
+        parameters = read_parameter_file(args.calibration)
+        if parameters.get('arm', args.arm) != args.arm:
+            raise CalibrationError(f'{args.calibration}: arm: {parameters["arm"]!r}, but '
+                                   f'--arm {args.arm}')
+        ArmCalibration.from_parameters(args.arm, parameters.get('calibration'),
+                                       args.calibration)
+    else:
+        parameters = ArmCalibration.nominal(args.arm).to_parameters()
+    signs = parameters.get('torque_signs', [1] * kinematics.DRIVEN_JOINTS)
+    if not (isinstance(signs, list) and len(signs) == kinematics.DRIVEN_JOINTS
+            and all(sign in (1, -1) and not isinstance(sign, bool) for sign in signs)):
+        raise CalibrationError(f'{args.calibration}: torque_signs: expected five of 1 or -1, '
+                               f'got {signs!r}')
+    return parameters, signs
+
+
+def hand_off_simulator(args):
+    """Return the built-in simulator of --port sim with the operator's hand off, not started."""
+    from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS
+    from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
+    truth = ArmCalibration.from_yaml(args.sim_calibration) if args.sim_calibration else None
+    off = (0.0,) * len(DEFAULT_DYNAMICS.hand_stiffness)
+    try:
+        return SimulatedKraftMaster(
+            arm=args.arm, calibration=truth, codec=args.codec, operator='hold',
+            pot_noise_counts=args.sim_noise,
+            dynamics=DEFAULT_DYNAMICS._replace(hand_stiffness=off, hand_damping=off))
+    except ValueError as error:
+        raise CalibrationError(f'--port sim: {error}') from None
+
+
+def check_torques(args, settings):
+    """Run the torque check; write torque_signs; return the exit status."""
+    parameters, applied = _calibration_parameters(args)
+    calibration = ArmCalibration.from_parameters(args.arm, parameters['calibration'],
+                                                 args.calibration or 'nominal')
+    simulator = hand_off_simulator(args) if args.port == SIM_PORT else None
+    try:
+        try:
+            device = KmcDevice(args.port if simulator is None else simulator.start(),
+                               baudrate=args.baud, codec=args.codec, torque_sign=applied)
+        except ValueError as error:
+            raise CalibrationError(f'{args.port}: {error}') from None
+        with device:
+            if not device.link_up:
+                # A driver running on the port holds its exclusive lock: refused here.
+                raise CalibrationError(f'refused: {device.last_error}')
+            print(f'torque check on {args.port}: hand off the handle; pulses up to '
+                  f'{settings.torque:g} N*m, stop beyond {math.degrees(settings.max_motion):g}'
+                  ' deg')
+            results = torque_check.TorqueCheck(device, calibration, settings).run()
+    finally:
+        if simulator is not None:
+            simulator.stop()
+    unsure = [result.axis for result in results if not result.moved]
+    if unsure:
+        print(f'sign unknown on axis {", ".join(map(str, unsure))}: nothing written',
+              file=sys.stderr)
+        return 1
+    signs = torque_check.measured_signs(results, applied)
+    parameters['torque_signs'] = signs
+    out = Path(args.out or args.calibration or f'{args.arm}_arm_calibrated.yaml')
+    header = (f'{args.arm} arm, kraft_master_calibrate --check-torques, '
+              f'{time.strftime("%Y-%m-%d %H:%M:%S")}\n'
+              f'torque_signs {signs} measured on {args.port} (codec {args.codec})')
+    text = yaml.safe_dump({'/**': {'ros__parameters': parameters}},
+                          default_flow_style=None, sort_keys=False)
+    out.write_text(''.join(f'# {line}\n' for line in header.splitlines()) + text,
+                   encoding='utf-8')
+    reversed_axes = [result.axis for result in results if not result.agrees]
+    if reversed_axes:
+        print(f'reversed: axis {", ".join(map(str, reversed_axes))}; the driver applies the '
+              'torque_signs written when it loads this file')
+    print(f'wrote torque_signs {signs} to {out}')
+    return 0
+
+
 def main(argv=None, ask=input):
     """Run the calibration; return the exit status (0 written, 1 error or flagged)."""
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.check_torques:
+        settings = _torque_settings(args, parser)
+        try:
+            return check_torques(args, settings)
+        except (CalibrationError, OSError) as error:
+            print(f'kraft_master_calibrate: {error}', file=sys.stderr)
+            return 1
     if args.samples < 1:
         parser.error('--samples must be at least 1')
     if args.sim_calibration and args.port != SIM_PORT:

@@ -156,6 +156,30 @@ def test_wrench_gives_effort_j_transpose_f_and_device_counts(session):
     assert np.any(np.all(np.abs(recent - expected_counts) <= 3, axis=1)), recent[-5:]
 
 
+def test_torque_signs_of_a_calibration_file_negate_those_axes_on_the_wire(install_prefix,
+                                                                          tmp_path):
+    # A calibration file as kraft_master_calibrate --check-torques writes it.
+    params = tmp_path / 'right_arm.yaml'
+    ArmCalibration.nominal('right').to_yaml(params)
+    signs = np.array([1, -1, 1, 1, -1])
+    params.write_text(params.read_text() + f'    torque_signs: {signs.tolist()}\n')
+    running = Session(install_prefix, [('force_enabled_at_start', 'true')], params_file=params)
+    try:
+        stream_until_torque(running.client)
+        state = latest_with_torque(running.client)
+        # The driver's torques keep the Jacobian's sense; the device gets them signed.
+        effort = np.array(state.effort)
+        np.testing.assert_allclose(effort, expected_effort(state.position, WRENCH), atol=2e-3)
+        driver_counts = np.round(kinematics.actuator_torques(effort)[:5] * DEFAULT_TORQUE_SCALE)
+        assert np.abs(driver_counts[signs < 0]).min() > 20, driver_counts
+        recent = np.array([command.counts
+                           for _, command in list(running.simulator.received)[-50:]])
+        assert np.any(np.all(np.abs(recent - signs * driver_counts) <= 3, axis=1)), (
+            recent[-5:], driver_counts)
+    finally:
+        running.close()
+
+
 def test_wrist_frame_wrench_is_rotated_into_the_base_frame(session):
     client = session.client
     stream_until_torque(client, frame_id=WRIST)
@@ -270,6 +294,7 @@ def test_refused_real_time_priority_warns_and_runs_at_normal_priority(install_pr
     ('loop_rate_hz', '0.0', 'loop_rate_hz'),
     ('arm', 'middle', 'arm'),
     ('torque_limits', '[1.0, 2.0]', 'torque_limits'),
+    ('torque_signs', '[1, 0, 1, 1, 1]', 'parameter torque_signs: [1, 0, 1, 1, 1]: each must be'),
     ('baud', 'fast', 'baud'),
     ('calibration.pot_a', '[157.0, 751.0, 248.0, 1126.0, 500.0, 99999.0]', 'calibration.pot_a'),
     ('calibration.pot_b', '[157.0, 3328.0, 3863.0, 2766.0, 2930.0, 2656.0]',
