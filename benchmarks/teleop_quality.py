@@ -88,6 +88,8 @@ def main(argv=None):
     parser.add_argument('--contact-damping', type=float,
                         help="the driver's contact_damping (s/m) in every session (default: "
                         "the demo's)")
+    parser.add_argument('--force-mode', choices=('direct', 'model', 'auto'), default='direct',
+                        help="the driver's force_mode in every session (doc/force-feedback.md)")
     parser.add_argument('--json', type=pathlib.Path, help='write the rows here')
     args = parser.parse_args(argv)
     settings = {'off': {}, 'contact': {'passivity': True}, 'sent': SENT_BOOKS}
@@ -110,6 +112,7 @@ def main(argv=None):
                                                     past=past / 1e3, seed=seed,
                                                     push=args.push, jitter_ms=args.jitter,
                                                     pot_counts=args.pot_counts,
+                                                    force_mode=args.force_mode,
                                                     **settings[mode])))
                             print(' | '.join(form.format(rows[-1][key])
                                              for _, key, form in COLUMNS), flush=True)
