@@ -43,6 +43,7 @@ setup(
             'kraft_master_demo = kraft_master_driver.tools.demo:main',
             'kraft_master_record = kraft_master_driver.tools.record:main',
             'kraft_master_ctl = kraft_master_driver.tools.ctl:main',
+            'kraft_master_sniff = kraft_master_driver.tools.sniff:main',
             'kraft_master_link_emulator = kraft_master_driver.nodes.commands:link_emulator',
             'kraft_master_teleop = kraft_master_driver.nodes.commands:teleop',
             'kraft_master_arm_sim = kraft_master_driver.nodes.commands:arm_sim',
