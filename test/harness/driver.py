@@ -13,6 +13,7 @@ import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm, PACKAGE, REPO
+from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -208,6 +209,36 @@ class DriverProcess:
             except subprocess.TimeoutExpired:
                 dds_shm.kill_and_clean(self.process)
                 self.process.communicate(timeout=10)
+
+
+class DriverSession:
+    """A simulated device in this process, the driver process on its pty, a client node."""
+
+    def __init__(self, prefix, parameters=(), namespace=None, arm='right', domain_id=None,
+                 wrapper=(), params_file=None):
+        """Start all three; the client listens in the driver's namespace."""
+        self.domain_id = domain_id or next_domain_id()
+        self.simulator = SimulatedKraftMaster(arm=arm, operator='hold')
+        self.port = port = self.simulator.start()
+        parameters = [('port', port), ('arm', arm), *parameters]
+        self.driver = DriverProcess(prefix, self.domain_id, parameters, namespace=namespace,
+                                    wrapper=wrapper, params_file=params_file)
+        self.client = RosClient(self.domain_id, namespace=namespace or '/')
+        try:
+            self.client.wait_connected()
+        except AssertionError:
+            self.close()
+            raise AssertionError('driver did not connect:\n' + self.driver.wait_exit()[1])
+
+    def last_command(self):
+        """Return the torque counts of the newest command the device received."""
+        return self.simulator.received[-1][1].counts
+
+    def close(self):
+        """Stop everything, whatever state the test left it in."""
+        self.client.close()
+        self.driver.kill()
+        self.simulator.stop()
 
 
 def slave_process(prefix, domain_id, parameters=()):

@@ -14,12 +14,11 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from harness.driver import (
-    DriverProcess, executable, installed_env, next_domain_id, RosClient, wait_for)
+    DriverProcess, DriverSession, executable, installed_env, next_domain_id, RosClient, wait_for)
 from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.link import frame_description
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
-from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
 from rcl_interfaces.msg import ParameterType
@@ -34,40 +33,10 @@ OK, WARN, ERROR = 0, 1, 2  # DiagnosticStatus levels
 WRENCH = (3.0, -2.0, 4.0, 0.05, -0.1, 0.08)
 
 
-class Session:
-    """A simulated device in this process, the driver process on its pty, a client node."""
-
-    def __init__(self, prefix, parameters=(), namespace=None, arm='right', domain_id=None,
-                 wrapper=(), params_file=None):
-        """Start all three; the client listens in the driver's namespace."""
-        self.domain_id = domain_id or next_domain_id()
-        self.simulator = SimulatedKraftMaster(arm=arm, operator='hold')
-        self.port = port = self.simulator.start()
-        parameters = [('port', port), ('arm', arm), *parameters]
-        self.driver = DriverProcess(prefix, self.domain_id, parameters, namespace=namespace,
-                                    wrapper=wrapper, params_file=params_file)
-        self.client = RosClient(self.domain_id, namespace=namespace or '/')
-        try:
-            self.client.wait_connected()
-        except AssertionError:
-            self.close()
-            raise AssertionError('driver did not connect:\n' + self.driver.wait_exit()[1])
-
-    def last_command(self):
-        """Return the torque counts of the newest command the device received."""
-        return self.simulator.received[-1][1].counts
-
-    def close(self):
-        """Stop everything, whatever state the test left it in."""
-        self.client.close()
-        self.driver.kill()
-        self.simulator.stop()
-
-
 @pytest.fixture
 def session(install_prefix):
     """Yield a running driver with force output enabled at start-up."""
-    running = Session(install_prefix, [('force_enabled_at_start', 'true')])
+    running = DriverSession(install_prefix, [('force_enabled_at_start', 'true')])
     yield running
     running.close()
 
@@ -87,7 +56,7 @@ def stream_until_torque(client, frame_id=BASE):
 @pytest.mark.parametrize('rate_hz', [100.0, 250.0])
 def test_joint_states_arrive_at_the_configured_rate(install_prefix, rate_hz):
     """A Python test client cannot follow 1 kHz; benchmarks/loop.py measures that rate."""
-    running = Session(install_prefix, [('loop_rate_hz', rate_hz)])
+    running = DriverSession(install_prefix, [('loop_rate_hz', rate_hz)])
     try:
         client, simulator = running.client, running.simulator
         client.spin(0.5)
@@ -163,7 +132,8 @@ def test_torque_signs_of_a_calibration_file_negate_those_axes_on_the_wire(instal
     ArmCalibration.nominal('right').to_yaml(params)
     signs = np.array([1, -1, 1, 1, -1])
     params.write_text(params.read_text() + f'    torque_signs: {signs.tolist()}\n')
-    running = Session(install_prefix, [('force_enabled_at_start', 'true')], params_file=params)
+    running = DriverSession(install_prefix, [('force_enabled_at_start', 'true')],
+                            params_file=params)
     try:
         stream_until_torque(running.client)
         state = latest_with_torque(running.client)
@@ -228,7 +198,7 @@ def test_disable_and_enable_force_output(session):
 
 
 def test_force_output_is_off_by_default(install_prefix):
-    running = Session(install_prefix)
+    running = DriverSession(install_prefix)
     try:
         running.client.stream_wrench(WRENCH, BASE, seconds=0.5)
         assert running.client.joint_states
@@ -240,7 +210,7 @@ def test_force_output_is_off_by_default(install_prefix):
 
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_signal_writes_zero_torque_then_exits_0(install_prefix, sig):
-    running = Session(install_prefix, [('force_enabled_at_start', 'true')])
+    running = DriverSession(install_prefix, [('force_enabled_at_start', 'true')])
     try:
         client = running.client
         client.stream_wrench_until(WRENCH, BASE, lambda: any(running.last_command()))
@@ -263,7 +233,7 @@ def scheduling_of_threads(pid):
 
 
 def test_loop_thread_runs_at_the_real_time_priority_asked(install_prefix):
-    running = Session(install_prefix, [('loop_priority', '30')])
+    running = DriverSession(install_prefix, [('loop_priority', '30')])
     try:
         assert running.client.joint_states
         threads = scheduling_of_threads(running.driver.process.pid)
@@ -277,7 +247,7 @@ def test_loop_thread_runs_at_the_real_time_priority_asked(install_prefix):
 
 def test_refused_real_time_priority_warns_and_runs_at_normal_priority(install_prefix):
     without_sys_nice = ['setpriv', '--inh-caps', '-sys_nice', '--bounding-set', '-sys_nice']
-    running = Session(install_prefix, [('loop_priority', '30')], wrapper=without_sys_nice)
+    running = DriverSession(install_prefix, [('loop_priority', '30')], wrapper=without_sys_nice)
     try:
         count = len(running.client.joint_states)
         running.client.wait(lambda: len(running.client.joint_states) > count + 100)
@@ -349,10 +319,10 @@ def test_bad_calibration_file_exits_1_naming_it(install_prefix, tmp_path):
 
 def test_two_arms_side_by_side(install_prefix):
     domain_id = next_domain_id()
-    left = Session(install_prefix, [('joint_prefix', 'left_')], namespace='/left',
-                   arm='left', domain_id=domain_id)
-    right = Session(install_prefix, [('joint_prefix', 'right_')], namespace='/right',
-                    domain_id=domain_id)
+    left = DriverSession(install_prefix, [('joint_prefix', 'left_')], namespace='/left',
+                         arm='left', domain_id=domain_id)
+    right = DriverSession(install_prefix, [('joint_prefix', 'right_')], namespace='/right',
+                          domain_id=domain_id)
     try:
         for running, arm in ((left, 'left'), (right, 'right')):
             running.client.spin(0.5)
@@ -383,8 +353,8 @@ def test_integers_are_accepted_for_double_parameters(install_prefix, tmp_path):
     params = tmp_path / 'integers.yaml'
     params.write_text('/**:\n  ros__parameters:\n    velocity_cutoff_hz: 40\n'
                       '    centre_damping: [0, 0]\n')
-    running = Session(install_prefix, [('loop_rate_hz', '200'),
-                                       ('torque_limits', '[1, 2, 2, 2, 2]')], params_file=params)
+    running = DriverSession(install_prefix, [('loop_rate_hz', '200'),
+                            ('torque_limits', '[1, 2, 2, 2, 2]')], params_file=params)
     try:
         client = running.client
         parameters = AsyncParameterClient(client.node, '/kraft_master_node')
@@ -417,7 +387,7 @@ def test_integers_are_accepted_for_double_parameters(install_prefix, tmp_path):
 
 def test_rate_command_is_advertised_only_once_enabled_and_says_it_waits_for_a_centre(
         install_prefix):
-    running = Session(install_prefix)  # rate_command_enabled false
+    running = DriverSession(install_prefix)  # rate_command_enabled false
     try:
         client = running.client
         others = {'/joint_states', '/pose', '/pots', '/master_energy', '/diagnostics'}
@@ -509,8 +479,8 @@ def test_unknown_parameter_exits_1_naming_the_nearest(install_prefix, tmp_path, 
 
 
 def test_standard_ros_parameters_stay_accepted(install_prefix):
-    running = Session(install_prefix, [('use_sim_time', 'false'),
-                                       ('start_type_description_service', 'true')])
+    running = DriverSession(install_prefix, [('use_sim_time', 'false'),
+                            ('start_type_description_service', 'true')])
     try:
         assert running.client.joint_states
     finally:
@@ -629,7 +599,7 @@ def test_a_missing_port_says_it_waits_for_the_device(install_prefix):
 
 
 def test_diagnostics_go_to_the_absolute_topic_named_by_the_node(install_prefix):
-    running = Session(install_prefix, namespace='/left', arm='left')
+    running = DriverSession(install_prefix, namespace='/left', arm='left')
     try:
         statuses = watch_diagnostics(running.client, '/left/kraft_master_node')
         running.client.wait(lambda: statuses)
@@ -645,7 +615,7 @@ def test_diagnostics_go_to_the_absolute_topic_named_by_the_node(install_prefix):
 
 
 def test_a_second_wrench_publisher_zeroes_torque_and_diagnostics_say_why(install_prefix):
-    running = Session(install_prefix, [('force_enabled_at_start', 'true')])
+    running = DriverSession(install_prefix, [('force_enabled_at_start', 'true')])
     client = running.client
     try:
         statuses = watch_diagnostics(client, '/kraft_master_node')
@@ -679,8 +649,8 @@ def test_a_second_wrench_publisher_zeroes_torque_and_diagnostics_say_why(install
 
 
 def test_several_wrench_sources_when_allowed(install_prefix):
-    running = Session(install_prefix, [('force_enabled_at_start', 'true'),
-                                       ('allow_multiple_wrench_sources', 'true')])
+    running = DriverSession(install_prefix, [('force_enabled_at_start', 'true'),
+                            ('allow_multiple_wrench_sources', 'true')])
     client = running.client
     try:
         client.node.create_publisher(
