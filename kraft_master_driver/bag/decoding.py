@@ -4,9 +4,9 @@
 Raw CDR messages decoded into numpy arrays, a topic at a time (TopicData).
 
 Equal-length messages are stacked into (N, length) byte arrays, and the fixed-layout CDR of
-JointState, PoseStamped, WrenchStamped, TwistStamped and Vector3Stamped is decoded with numpy, equal to
-rosbags' deserialisation message by message. Other types (DiagnosticArray) are deserialised
-one by one with rosbags. Malformed messages are counted and skipped, never raised.
+JointState, PoseStamped, WrenchStamped, TwistStamped and Vector3Stamped is decoded with numpy,
+equal to rosbags' deserialisation message by message. Other types (DiagnosticArray) are
+deserialised one by one with rosbags. Malformed messages are counted and skipped, never raised.
 """
 from collections.abc import Sequence
 import struct

@@ -63,7 +63,7 @@ def _parser():
                             'violation, a table of the faults; exit 1 on any violation')
     check.add_argument('--faults', metavar='JSONL',
                        help='with --check: the faults injected, one JSON object a line: kind, '
-                            'side (master, arm, link, clock), start, end (s, the bag\'s clock)')
+                            "side (master, arm, link, clock), start, end (s, the bag's clock)")
     check.add_argument('--json', metavar='OUT', help='with --check: write the summary here')
     return parser
 
