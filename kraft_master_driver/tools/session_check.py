@@ -187,6 +187,8 @@ def _check_pair(pair: _Pair, faults: list[Fault], limits: Limits, passivity: Opt
             on = _passivity(statuses, own.t, passivity)
             if on.any():
                 ran(CHECKS[5], invariants.energy_generated(own, credit, on, port, limits)[0])
+            else:
+                checked[CHECKS[5]]['skipped'] = f'passivity off at the {port} port'
     return found
 
 
@@ -277,7 +279,9 @@ def check_session(bag_path: str | os.PathLike[str],
                           'time_to_recovery_ms': _figures(kind['recovery']),
                           'not_recovered': sum(t is None for t in kind['recovery'])}
                    for name, kind in sorted(timings.items())},
-        'checks': {check: outcome if outcome['ran_on'] else 'not checked: its topics are '
-                   'not in the bag' for check, outcome in checked.items()},
+        'checks': {check: {'ran_on': outcome['ran_on'], 'violations': outcome['violations']}
+                   if outcome['ran_on'] else 'not checked: ' + outcome.get(
+                       'skipped', 'its topics are not in the bag')
+                   for check, outcome in checked.items()},
         'violations': lines}
     return SessionCheck(lines, summary)
