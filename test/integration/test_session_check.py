@@ -1,8 +1,10 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """
-kraft_master_report --check on a real session: the demo's driver, bridge and simulated arm,
-recorded by kraft_master_record, the arm's process stopped long enough to fault the bridge.
+kraft_master_report --check on a real session, recorded by kraft_master_record.
+
+The demo's driver, bridge and simulated arm run; the arm's process is stopped long enough to
+fault the bridge.
 """
 import json
 import os
@@ -36,9 +38,9 @@ def arm_process(demo):
 def test_a_recorded_session_with_a_fault_keeps_every_invariant(start_demo, tmp_path, capsys):
     demo = start_demo(DURATION, arm='point-mass', force_mode='direct')
     domain_id = demo.recorder.context.get_domain_id()
+    path = os.pathsep.join(filter(None, [str(REPO), os.environ.get('PYTHONPATH')]))
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               PYTHONPATH=os.pathsep.join(filter(None, [str(REPO),
-                                                         os.environ.get('PYTHONPATH')])))
+               PYTHONPATH=path)
     bag = tmp_path / 'session'
     recorder = subprocess.Popen(
         [sys.executable, '-m', 'kraft_master_driver.tools.record', '-a', '-o', str(bag),
