@@ -7,7 +7,7 @@ No bag here: session_check.py reads the bag into Series (receive times in second
 and hands them on. Each check returns the Violations it finds, each naming its time (the
 receive time of the message at fault, seconds of the bag's clock) and its topic.
 """
-from typing import NamedTuple, Optional
+from typing import Callable, NamedTuple, Optional
 
 import numpy as np
 
@@ -73,6 +73,14 @@ class Limits(NamedTuple):
     frame_tolerance: int  # pot frames a diagnostics count may differ from the bag at its stamp
     energy_tolerance: float  # J a port may hand out beyond its credit
     energy_grace: float  # s: credit received this much after a port's message still counts
+
+
+def _first(series: Series, rows: np.ndarray, text: Callable[[int], str]) -> list[Violation]:
+    """Return the Violation at the first of `rows` of `series`, told by text(row); or none."""
+    if not rows.size:
+        return []
+    row = int(rows[0])
+    return [Violation(float(series.t[row]), series.topic, text(row))]
 
 
 def state_periods(t: np.ndarray, texts: list[str], end: float) -> list[Period]:
@@ -188,13 +196,10 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Vio
         start = fault.start + limits.torque_zero_within
         rows = np.flatnonzero((effort.t >= start) & (effort.t <= fault.end) &
                               (size > limits.torque_zero))
-        if rows.size:
-            row = rows[0]
-            found.append(Violation(
-                float(effort.t[row]), effort.topic,
-                f'torque {size[row]:.4f} N*m {effort.t[row] - fault.start:.3f} s after '
-                f'{fault.kind} ({fault.side}) began at {fault.start:.3f} s: zero required '
-                f'from {1e3 * limits.torque_zero_within:.0f} ms on'))
+        found += _first(effort, rows, lambda row: (
+            f'torque {size[row]:.4f} N*m {effort.t[row] - fault.start:.3f} s after '
+            f'{fault.kind} ({fault.side}) began at {fault.start:.3f} s: zero required '
+            f'from {1e3 * limits.torque_zero_within:.0f} ms on'))
     return found
 
 
@@ -209,13 +214,10 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Vi
         rows = np.flatnonzero((effort.t[1:] >= fault.end) &
                               (effort.t[1:] <= fault.end + limits.recovery_window) &
                               rising & (steps > limits.max_torque_step))
-        if rows.size:
-            row = rows[0]
-            found.append(Violation(
-                float(effort.t[row + 1]), effort.topic,
-                f'torque rose {steps[row]:.4f} N*m in one message as force came back after '
-                f'{fault.kind} ({fault.side}) ended at {fault.end:.3f} s (bound '
-                f'{limits.max_torque_step:g} N*m)'))
+        found += _first(effort, rows + 1, lambda row: (
+            f'torque rose {steps[row - 1]:.4f} N*m in one message as force came back after '
+            f'{fault.kind} ({fault.side}) ended at {fault.end:.3f} s (bound '
+            f'{limits.max_torque_step:g} N*m)'))
     return found
 
 
@@ -274,13 +276,8 @@ def energy_generated(own: Series, credit: Series, passivity: np.ndarray, port: s
     known = np.where(index >= 0, credit_in[np.maximum(index, 0)], 0.0)
     excess = np.where(passivity, own.values[:, 1] - known, -np.inf)
     worst = float(np.max(excess, initial=-np.inf))
-    bad = np.flatnonzero(excess > limits.energy_tolerance)
-    found = []
-    if bad.size:
-        row = bad[0]
-        found.append(Violation(
-            float(own.t[row]), own.topic,
-            f'the {port} port handed out {own.values[row, 1]:.4f} J against a credit of '
-            f'{known[row]:.4f} J (tolerance {limits.energy_tolerance:g} J), passivity on; '
-            f'worst excess {worst:.4f} J'))
+    found = _first(own, np.flatnonzero(excess > limits.energy_tolerance), lambda row: (
+        f'the {port} port handed out {own.values[row, 1]:.4f} J against a credit of '
+        f'{known[row]:.4f} J (tolerance {limits.energy_tolerance:g} J), passivity on; '
+        f'worst excess {worst:.4f} J'))
     return found, worst
