@@ -211,7 +211,9 @@ def _times(fault: Fault, pair: _Pair, limits: Limits) -> tuple[Optional[float], 
     to_safe = max(known) - fault.start if known and len(known) == len(safe) else None
     frames = pair.effort or _series(pair.pots, 'position')
     back = [None if frames is None else _first_at(frames.t, fault.end)]
-    if pair.periods:
+    at_start = [p for p in pair.periods if p.start <= fault.start < p.end]
+    if at_start and at_start[0].state == 'ENABLED' and not at_start[0].reason:
+        # The bridge followed when the fault came: recovered when it follows again.
         following = [max(p.start, fault.end) for p in pair.periods
                      if p.end > fault.end and p.state == 'ENABLED' and not p.reason]
         back.append(following[0] if following else None)
