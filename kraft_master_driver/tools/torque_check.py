@@ -52,7 +52,7 @@ class AxisResult(NamedTuple):
     axis: int  # 1..5
     torque: float  # N*m of the last pulse
     peak: float  # rad, the displacement of largest magnitude, with its sign
-    half_pulse: float  # s
+    half_pulse: float  # s: the push as sent (half the pulse; longer after a late cycle)
 
     @property
     def moved(self) -> bool:
@@ -166,13 +166,22 @@ class TorqueCheck:
         half = self.settings.pulse / 2.0
         push = tuple(torque if k == axis - 1 else 0.0 for k in range(AXES))
         pull = tuple(-t for t in push)
-        angles = self._run(self.settings.pulse, lambda t: push if t < half else pull,
+        pulled_at = []
+
+        def doublet(elapsed):
+            if elapsed < half:
+                return push
+            if not pulled_at:
+                pulled_at.append(elapsed)
+            return pull
+        angles = self._run(self.settings.pulse, doublet,
                            self._bound(f'during the pulse on axis {axis}'))
         self._run(self.settings.settle, lambda _: ZERO_TORQUES,
                   self._bound(f'after the pulse on axis {axis}'))
         moved = angles[:, axis - 1] - self._rest[axis - 1]
         peak = float(moved[int(np.argmax(np.abs(moved)))])
-        return AxisResult(axis, torque, peak, half)
+        # The push as it was sent: a late cycle lengthens it, and the motion with it.
+        return AxisResult(axis, torque, peak, pulled_at[0] if pulled_at else half)
 
     def check_axis(self, axis):
         """Pulse `axis` at rising torques until it moves min_motion; return its AxisResult."""
