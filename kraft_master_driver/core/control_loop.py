@@ -132,7 +132,8 @@ class ControlLoop:
     model: the contact model's side (core.force_mode.ModelFeedback), or None: direct only.
 
     run() cycles in the calling thread until stop() is called or keep_running() is false.
-    centre (a 4x4 0T6 array, or None) and publish_decimation may be set from other threads.
+    centre (a 4x4 0T6 array, or None), holding and publish_decimation may be set from other
+    threads.
     """
 
     def __init__(self, device: Device, force: ForceReflection,
@@ -167,6 +168,8 @@ class ControlLoop:
         self.executor_scheduler = 'normal'
         self.memory_lock = 'not locked (loop_priority 0)'
         self.centre: NDArray[np.float64] | None = None
+        # holding(theta): the motor torques that hold the arm up (core/gravity.py), or None.
+        self.holding: Callable[[Sequence[float]], Sequence[float]] | None = None
         # The TorqueOutput of the last send, None without an estimate.
         self.output: TorqueOutput | None = None
         self.pose_entries: tuple[float, ...] | None = None  # 0T6 of the newest frame, by row
@@ -291,10 +294,12 @@ class ControlLoop:
             if model is not None and velocity is not None:
                 pose = estimate.pose
                 model_force = model.force((pose[3], pose[7], pose[11]), velocity[:3], now_ns)
+            holding = self.holding
             output = self.force.compute(
                 estimate.rotation, estimate.jacobian, now_ns,
                 pose=None if centre is None else self.pose(), centre=centre,
-                cartesian_velocity=velocity, port=self.master_port, model=model_force)
+                cartesian_velocity=velocity, port=self.master_port, model=model_force,
+                holding=None if holding is None else holding(estimate.theta))
             if model is not None:
                 model.applied(output.model_share if output.state == ACTIVE else 0.0)
             if output.state == STALE and self._last_force_state != STALE:

@@ -249,7 +249,8 @@ class ForceReflection:
                 centre: NDArray[np.float64] | None = None,
                 cartesian_velocity: Vector | None = None,
                 port: Port | None = None,
-                model: tuple[Sequence[float], float] | None = None) -> TorqueOutput:
+                model: tuple[Sequence[float], float] | None = None,
+                holding: Sequence[float] | None = None) -> TorqueOutput:
         """
         Return the TorqueOutput for this cycle.
 
@@ -265,6 +266,9 @@ class ForceReflection:
         share of the force (0..1, core/force_mode.py): the wrench is the direct one times
         (1 - share) plus force_scale times the model's times share, then the centre terms; with
         no direct wrench to give (none yet, stale, refused) the model's alone.
+        holding: the motor torques (N*m, actuator axes 1..5) that hold the arm up against its
+        weight (core/gravity.py), added whatever the wrench's state while force is enabled,
+        inside the torque limits.
         """
         hot = self._hot
         settings = hot.settings
@@ -282,8 +286,13 @@ class ForceReflection:
             for axis in range(3):
                 wrench[axis] += scaled * model[0][axis]
             state = ACTIVE
+        actuator_form = settings.coupling == 'actuator'
         if wrench is None:
-            return _ZERO_OUTPUTS[state]
+            if holding is None:
+                return _ZERO_OUTPUTS[state]
+            # The port has nothing of this to book (the wrench's path idled it).
+            return self._limited([0.0] * DRIVEN_AXES, holding, actuator_form, state, None, 0.0,
+                                 None, now_ns)
         latest = self._latest
         tag = latest.tag if isinstance(latest, WrenchInput) else None
         if hot.stiffness is not None and pose is not None and centre is not None:
@@ -296,15 +305,25 @@ class ForceReflection:
         # Plain floats: a few tolist() calls beat a chain of tiny numpy operations here.
         columns = list(zip(*_as_lists(jacobian)))
         torques = [sum(map(operator.mul, column, wrench)) for column in columns[:DRIVEN_AXES]]
-        actuator_form = settings.coupling == 'actuator'
         if actuator_form:
             torques[1] -= torques[2]  # kinematics.actuator_torques, inlined
+        return self._limited(torques, holding, actuator_form, ACTIVE, tag, share, port, now_ns)
+
+    def _limited(self, torques: list[float], holding: Sequence[float] | None,
+                 actuator_form: bool, state: str, tag: object, share: float,
+                 port: Port | None, now_ns: int) -> TorqueOutput:
+        """Add the holding torques, refuse non-finite ones, scale into the torque limits."""
+        if holding is not None:
+            h1, h2, h3, h4, h5 = holding
+            # Actuator axes; a device taking joint torques gets tau2 = tau_q2 + tau_q3.
+            torques = [t + h for t, h in zip(torques, (
+                h1, h2 if actuator_form else h2 + h3, h3, h4, h5))]
         if not all(map(math.isfinite, torques)):
             self._non_finite_results += 1
             if port is not None:
                 port.scaled(0.0)  # nothing reflected after all
             return self._idle(REJECTED, port, now_ns)
-        limits = settings.torque_limits
+        limits = self._hot.settings.torque_limits
         saturated = any(abs(tau) > limit for tau, limit in zip(torques, limits))
         if saturated:
             # One factor for the whole vector keeps its direction; the clamp only trims rounding.
@@ -319,7 +338,7 @@ class ForceReflection:
         t1, t2, t3, t4, t5 = torques
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
         joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)
-        return TorqueOutput(tuple(torques), joint, ACTIVE, saturated, tag, share)
+        return TorqueOutput(tuple(torques), joint, state, saturated, tag, share)
 
     def _direct(self, rotation: Matrix, now_ns: int, cartesian_velocity: Vector | None,
                 port: Port | None, share: float) -> tuple[str, list[float] | None]:

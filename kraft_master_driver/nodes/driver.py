@@ -19,6 +19,7 @@ from kraft_master_driver.core.control_loop import ControlLoop, LOOP_THREAD
 from kraft_master_driver.core.force_mode import (
     ForceMode, ModelFeedback, ModeSelector, ModeSettings)
 from kraft_master_driver.core.force_reflection import ForceReflection
+from kraft_master_driver.core.gravity import GravityModel
 from kraft_master_driver.core.passivity import MasterPort
 from kraft_master_driver.core.velocity_filter import VelocityFilter
 from kraft_master_driver.core.wrench_admission import BASE_FRAME, WRIST_FRAME
@@ -81,7 +82,7 @@ class KraftMasterNode(Node):
         steady_timer(self, 1.0, self._publish_diagnostics)
         self._errors_reported = {}
 
-        self.simulator = self.device = self.loop = self._thread = None
+        self.simulator = self.device = self.loop = self._thread = self._gravity = None
         try:
             self._start_device()
         except BaseException:
@@ -127,6 +128,7 @@ class KraftMasterNode(Node):
             publish_decimation=self.config['publish_decimation'],
             priority=self.config['loop_priority'], executor_thread=threading.get_native_id(),
             keep_running=self.context.ok, model=self.model)
+        self._update_gravity()
         # Not a daemon: the interpreter waits for the loop to zero the torques on its way out.
         self._thread = realtime.NamedThread(target=self.loop.run, name=LOOP_THREAD)
         self._thread.start()
@@ -145,6 +147,16 @@ class KraftMasterNode(Node):
         return ModelFeedback(selector, ContactRenderer(RendererSettings(
             config['loop_rate_hz'], config['device_damping'], config['approach_speed'],
             config['update_energy'], config['model_timeout'])))
+
+    def _update_gravity(self):
+        """Give the loop the arm's holding torques, or none, as the parameters say."""
+        if not self.config['gravity_compensation']:
+            self.loop.holding = None
+            return
+        if self._gravity is None:
+            self._gravity = GravityModel(self.arm, self.loop.lengths)
+        model, base = self._gravity, tuple(self.config['gravity_parameters'])
+        self.loop.holding = lambda theta: model.holding_torques(theta, base).tolist()
 
     def _calibration(self):
         calibration = {key.split('.', 1)[1]: value for key, value in self.config.items()
@@ -265,6 +277,8 @@ class KraftMasterNode(Node):
         if 'publish_decimation' in changes:
             self.loop.publish_decimation = changes['publish_decimation']
         self.config.update(changes)
+        if {'gravity_compensation', 'gravity_parameters'} & set(changes):
+            self._update_gravity()
         return SetParametersResult(successful=True)
 
     def _warn_link_errors(self, device_stats):

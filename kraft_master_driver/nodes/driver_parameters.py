@@ -5,6 +5,7 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import ArmCalibration
 from kraft_master_driver.core.contact_rendering import RendererSettings
 from kraft_master_driver.core.force_mode import ForceMode, ModeSettings
+from kraft_master_driver.core.gravity import BASE_NAMES
 from kraft_master_driver.link.protocol import (
     CODECS, DEFAULT_CODEC, DEFAULT_TORQUE_LIMIT, DEFAULT_TORQUE_SCALE)
 from kraft_master_driver.nodes.parameters import Spec
@@ -87,6 +88,14 @@ PARAMETERS = {
                             'reflected (N*s/m per N, i.e. s/m): none in free space; it keeps a '
                             'stiff contact reflected through a lagging arm still.',
                             read_only=False, low=0.0, high=100.0),
+    'gravity_compensation': Spec(False, 'Add the motor torques that hold the arm up against '
+                                 'its weight (from gravity_parameters) while force output is '
+                                 "enabled, whatever the wrench's state, inside torque_limits.",
+                                 read_only=False),
+    'gravity_parameters': Spec([0.0] * len(BASE_NAMES), "The arm's gravity base parameters "
+                               f'{", ".join(BASE_NAMES)} (kg*m), as kraft_master_calibrate '
+                               '--identify-gravity writes them into the calibration file.',
+                               read_only=False, low=-10.0, high=10.0, length=len(BASE_NAMES)),
     'rate_command_enabled': Spec(False, 'Publish rate_command (pose minus centre, times gain) '
                                  'once set_center has set the centre, nothing before; the '
                                  'topic exists from the first time this is true.',

@@ -37,9 +37,10 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.calibration import (
     ArmCalibration, CalibrationError, POT_COUNT, POT_JOINT, POT_MAX, POT_MEASURES,
     read_parameter_file)
+from kraft_master_driver.core.gravity import GravityModel
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import CODECS, DEFAULT_CODEC
-from kraft_master_driver.tools import torque_check
+from kraft_master_driver.tools import gravity_identification, torque_check
 import numpy as np
 import yaml
 
@@ -437,6 +438,10 @@ def _parser():
                        help='the parameter file of the pot calibration (and any torque_signs, '
                             'applied while checking); written back with torque_signs unless '
                             '--out (default: the nominal calibration)')
+    check.add_argument('--identify-gravity', action='store_true',
+                       help='hand off the handle: hold the arm at poses across the workspace, '
+                            'fit its weight, write gravity_parameters into the calibration file '
+                            '(with --port sim, the simulated links weigh)')
     defaults = torque_check.Settings()
     check.add_argument('--torque', type=float, default=defaults.torque,
                        help='largest pulse torque (N*m; default %(default)g); pulses start '
@@ -536,19 +541,63 @@ def _calibration_parameters(args):
     return parameters, signs
 
 
-def hand_off_simulator(args):
+def hand_off_simulator(args, gravity=False):
     """Return the built-in simulator of --port sim with the operator's hand off, not started."""
-    from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS
+    from kraft_master_driver.simulation.master.model import HAND_OFF
     from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
     truth = ArmCalibration.from_yaml(args.sim_calibration) if args.sim_calibration else None
-    off = (0.0,) * len(DEFAULT_DYNAMICS.hand_stiffness)
     try:
         return SimulatedKraftMaster(
             arm=args.arm, calibration=truth, codec=args.codec, operator='hold',
-            pot_noise_counts=args.sim_noise,
-            dynamics=DEFAULT_DYNAMICS._replace(hand_stiffness=off, hand_damping=off))
+            pot_noise_counts=args.sim_noise, dynamics=HAND_OFF, gravity=gravity)
     except ValueError as error:
         raise CalibrationError(f'--port sim: {error}') from None
+
+
+class _HandOffDevice:
+    """The device of --port (or the built-in simulator, hand off), open, its link up."""
+
+    def __init__(self, args, applied_signs, gravity=False):
+        """Start the simulator of --port sim; nothing is opened until entered."""
+        self.args, self.signs = args, applied_signs
+        self.simulator = hand_off_simulator(args, gravity) if args.port == SIM_PORT else None
+        self.device = None
+
+    def __enter__(self):
+        """Open the port; CalibrationError if it cannot be, or is busy."""
+        args = self.args
+        try:
+            port = args.port if self.simulator is None else self.simulator.start()
+            self.device = KmcDevice(port, baudrate=args.baud, codec=args.codec,
+                                    torque_sign=self.signs)
+        except ValueError as error:
+            self.__exit__()
+            raise CalibrationError(f'{args.port}: {error}') from None
+        self.device.open()
+        if not self.device.link_up:
+            self.__exit__()
+            # A driver running on the port holds its exclusive lock: refused here.
+            raise CalibrationError(f'refused: {self.device.last_error}')
+        return self.device
+
+    def __exit__(self, *_exc):
+        """Zero the torques and close; stop the simulator."""
+        if self.device is not None:
+            self.device.close()
+        if self.simulator is not None:
+            self.simulator.stop()
+
+
+def _write_parameters(args, parameters, what):
+    """Write the calibration file back with what was measured; return its path."""
+    out = Path(args.out or args.calibration or f'{args.arm}_arm_calibrated.yaml')
+    header = (f'{args.arm} arm, kraft_master_calibrate, {time.strftime("%Y-%m-%d %H:%M:%S")}\n'
+              f'{what} measured on {args.port} (codec {args.codec})')
+    text = yaml.safe_dump({'/**': {'ros__parameters': parameters}},
+                          default_flow_style=None, sort_keys=False)
+    out.write_text(''.join(f'# {line}\n' for line in header.splitlines()) + text,
+                   encoding='utf-8')
+    return out
 
 
 def check_torques(args, settings):
@@ -556,24 +605,11 @@ def check_torques(args, settings):
     parameters, applied = _calibration_parameters(args)
     calibration = ArmCalibration.from_parameters(args.arm, parameters['calibration'],
                                                  args.calibration or 'nominal')
-    simulator = hand_off_simulator(args) if args.port == SIM_PORT else None
-    try:
-        try:
-            device = KmcDevice(args.port if simulator is None else simulator.start(),
-                               baudrate=args.baud, codec=args.codec, torque_sign=applied)
-        except ValueError as error:
-            raise CalibrationError(f'{args.port}: {error}') from None
-        with device:
-            if not device.link_up:
-                # A driver running on the port holds its exclusive lock: refused here.
-                raise CalibrationError(f'refused: {device.last_error}')
-            print(f'torque check on {args.port}: hand off the handle; pulses up to '
-                  f'{settings.torque:g} N*m, stop beyond {math.degrees(settings.max_motion):g}'
-                  ' deg')
-            results = torque_check.TorqueCheck(device, calibration, settings).run()
-    finally:
-        if simulator is not None:
-            simulator.stop()
+    with _HandOffDevice(args, applied) as device:
+        print(f'torque check on {args.port}: hand off the handle; pulses up to '
+              f'{settings.torque:g} N*m, stop beyond {math.degrees(settings.max_motion):g}'
+              ' deg')
+        results = torque_check.TorqueCheck(device, calibration, settings).run()
     unsure = [result.axis for result in results if not result.moved]
     if unsure:
         print(f'sign unknown on axis {", ".join(map(str, unsure))}: nothing written',
@@ -581,14 +617,7 @@ def check_torques(args, settings):
         return 1
     signs = torque_check.measured_signs(results, applied)
     parameters['torque_signs'] = signs
-    out = Path(args.out or args.calibration or f'{args.arm}_arm_calibrated.yaml')
-    header = (f'{args.arm} arm, kraft_master_calibrate --check-torques, '
-              f'{time.strftime("%Y-%m-%d %H:%M:%S")}\n'
-              f'torque_signs {signs} measured on {args.port} (codec {args.codec})')
-    text = yaml.safe_dump({'/**': {'ros__parameters': parameters}},
-                          default_flow_style=None, sort_keys=False)
-    out.write_text(''.join(f'# {line}\n' for line in header.splitlines()) + text,
-                   encoding='utf-8')
+    out = _write_parameters(args, parameters, f'torque_signs {signs}')
     reversed_axes = [result.axis for result in results if not result.agrees]
     if reversed_axes:
         print(f'reversed: axis {", ".join(map(str, reversed_axes))}; the driver applies the '
@@ -597,14 +626,38 @@ def check_torques(args, settings):
     return 0
 
 
+def identify_gravity(args):
+    """Hold the poses, fit the arm's weight, write gravity_parameters; return the status."""
+    parameters, applied = _calibration_parameters(args)
+    calibration = ArmCalibration.from_parameters(args.arm, parameters['calibration'],
+                                                 args.calibration or 'nominal')
+    lengths = parameters.get('link_lengths')
+    model = GravityModel(args.arm, None if lengths is None else kinematics.LinkLengths(*lengths))
+    with _HandOffDevice(args, applied, gravity=True) as device:
+        print(f'gravity identification on {args.port}: hand off the handle; the arm is held '
+              f'at {len(gravity_identification.POSES_DEG)} poses, each from above and below')
+        result = gravity_identification.identify(
+            gravity_identification.PdHold(device, calibration), model)
+    for line in gravity_identification.describe(result):
+        print(line)
+    parameters['gravity_parameters'] = [round(value, 7) for value in result.base]
+    out = _write_parameters(args, parameters, 'gravity_parameters')
+    print(f'wrote gravity_parameters to {out}; the driver adds them with '
+          'gravity_compensation:=true')
+    return 0
+
+
 def main(argv=None, ask=input):
     """Run the calibration; return the exit status (0 written, 1 error or flagged)."""
     parser = _parser()
     args = parser.parse_args(argv)
-    if args.check_torques:
-        settings = _torque_settings(args, parser)
+    if args.check_torques and args.identify_gravity:
+        parser.error('--check-torques and --identify-gravity: one at a time')
+    if args.check_torques or args.identify_gravity:
         try:
-            return check_torques(args, settings)
+            if args.identify_gravity:
+                return identify_gravity(args)
+            return check_torques(args, _torque_settings(args, parser))
         except (CalibrationError, OSError) as error:
             print(f'kraft_master_calibrate: {error}', file=sys.stderr)
             return 1

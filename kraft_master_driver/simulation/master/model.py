@@ -8,6 +8,8 @@ The simulated device's mechanics, and the workspace its operator hand keeps to.
   limits of Table II as rigid, inelastic end stops (the elbow's range coupled to th2).
 - The operator's hand is a spring-damper per axis pulling the device toward a target; the
   motors act against it.
+- Optionally the links' weight (core.gravity, the made-up SIMULATED_MASSES), taken at the pose
+  of each step's start.
 """
 import math
 from typing import NamedTuple
@@ -40,6 +42,8 @@ DEFAULT_DYNAMICS = AxisDynamics(
     hand_stiffness=(20.0, 20.0, 15.0, 3.0, 3.0, 1.0),
     hand_damping=(1.4, 1.4, 1.05, 0.19, 0.19, 0.07),
 )
+# The operator's hand off the handle.
+HAND_OFF = DEFAULT_DYNAMICS._replace(hand_stiffness=(0.0,) * 6, hand_damping=(0.0,) * 6)
 
 
 def joints_to_actuators(theta):
@@ -97,8 +101,14 @@ class DeviceModel:
     The state is plain Python floats: for six axes that is several times faster than numpy.
     """
 
-    def __init__(self, dynamics, start):
-        """Start at rest at joint angles `start` (6,) with the parameters `dynamics`."""
+    def __init__(self, dynamics, start, weight=None):
+        """
+        Start at rest at joint angles `start` (6,) with the parameters `dynamics`.
+
+        weight(theta) returns the five motor torques that hold the links up at joint angles
+        theta (core.gravity); None: no gravity.
+        """
+        self._weight = weight
         self.q = joints_to_actuators(start).tolist()
         self.qd = [0.0] * JOINT_COUNT
         self.motor = [0.0] * JOINT_COUNT  # actuator torques, N*m; the roll stays zero
@@ -116,11 +126,15 @@ class DeviceModel:
         substeps = max(1, math.ceil(elapsed / MAX_SUBSTEP))
         dt = elapsed / substeps
         q, qd, lower, upper = self.q, self.qd, self._lower, self._upper
-        axes = [(axis, dt * inverse_inertia, dt * friction, motor + stiffness * goal,
+        motor = self.motor
+        if self._weight is not None:
+            holding = self._weight(self.joint_angle_list())
+            motor = [torque - held for torque, held in zip(motor, [*holding, 0.0])]
+        axes = [(axis, dt * inverse_inertia, dt * friction, torque + stiffness * goal,
                  stiffness, damping)
-                for axis, (inverse_inertia, friction, motor, stiffness, goal, damping)
+                for axis, (inverse_inertia, friction, torque, stiffness, goal, damping)
                 in enumerate(zip(self._inverse_inertia, self._friction_per_inertia,
-                                 self.motor, self._stiffness, target, self._damping))]
+                                 motor, self._stiffness, target, self._damping))]
         for _ in range(substeps):
             for axis, velocity_per_torque, stiction, drive, stiffness, damping in axes:
                 # Semi-implicit Euler; Coulomb friction as an impulse that can stop the axis.

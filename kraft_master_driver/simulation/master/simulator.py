@@ -31,11 +31,13 @@ import time
 
 from kraft_master_driver.core import kinematics, realtime
 from kraft_master_driver.core.calibration import ArmCalibration, CalibrationError
+from kraft_master_driver.core.gravity import GravityModel, SIMULATED_MASSES
 from kraft_master_driver.core.process import STOP_SIGNALS, stop_with_parent
 from kraft_master_driver.link.protocol import CODECS, DEFAULT_CODEC, get_codec
 from kraft_master_driver.simulation.master.electronics import COUPLINGS, Electronics
 from kraft_master_driver.simulation.master.faults import FaultInjector
-from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS, DeviceModel, Workspace
+from kraft_master_driver.simulation.master.model import (
+    DEFAULT_DYNAMICS, DeviceModel, HAND_OFF, Workspace)
 from kraft_master_driver.simulation.master.operators import (
     HoldOperator, make_operator, OPERATORS, PushOperator)
 from kraft_master_driver.simulation.master.serving import ServingThread
@@ -53,7 +55,8 @@ class SimulatedKraftMaster:
                  pot_noise_counts=0.0, baudrate=None, seed=0, *,
                  torque_limit=None, command_timeout=0.1,
                  operator_period=2.0, drop_reply_rate=0.0, corrupt_byte_rate=0.0,
-                 dynamics=DEFAULT_DYNAMICS, record=10000, priority=0, transport='pty'):
+                 dynamics=DEFAULT_DYNAMICS, record=10000, priority=0, transport='pty',
+                 gravity=False):
         """
         Configure the device; nothing runs until start().
 
@@ -68,7 +71,9 @@ class SimulatedKraftMaster:
         device's own electronics would (0: the normal scheduler; if the OS refuses,
         priority_error says why and the thread runs normally). transport 'pty': the port is
         a pseudo-terminal behind a symlink; 'tcp': a TCP server on 127.0.0.1 that serves one
-        host at a time, its port a pyserial URL socket://127.0.0.1:N.
+        host at a time, its port a pyserial URL socket://127.0.0.1:N. gravity: the links
+        weigh core.gravity.SIMULATED_MASSES (made up); holding_torques() gives their true
+        torques.
         """
         self._transport = make_transport(transport, self._forget_in_flight)
         self.transport = transport
@@ -97,7 +102,12 @@ class SimulatedKraftMaster:
         workspace = Workspace()
         self._operator = make_operator(operator, workspace, operator_period,
                                        np.random.default_rng(operator_seed))
-        self._model = DeviceModel(dynamics, workspace.home())
+        self.gravity = gravity
+        self._gravity_model = GravityModel(arm) if gravity else None
+        self.true_gravity = (None if self._gravity_model is None
+                             else self._gravity_model.base_parameters(SIMULATED_MASSES))
+        self._model = DeviceModel(dynamics, workspace.home(),
+                                  weight=self.holding_torques if gravity else None)
         self._model_lock = threading.Lock()
         self._electronics = Electronics(
             self._model, self.calibration, coupling=coupling,
@@ -116,6 +126,12 @@ class SimulatedKraftMaster:
         self._model_time = 0.0
         self._start_time = 0.0
         self._waits_for_host = False  # the operator's time stands at 0 until the first command
+
+    def holding_torques(self, theta):
+        """Return the motor torques (N*m, axes 1..5) that hold the links up at theta."""
+        if self._gravity_model is None:
+            return [0.0] * kinematics.DRIVEN_JOINTS
+        return self._gravity_model.holding_torques(theta, self.true_gravity).tolist()
 
     # Fault switches.
 
@@ -317,6 +333,10 @@ def main(argv=None):
     parser.add_argument('--tcp', action='store_true',
                         help='serve on TCP, 127.0.0.1, instead of a pty: the port is a '
                              'socket:// URL, as of a serial device server')
+    parser.add_argument('--gravity', action='store_true',
+                        help='the links weigh what core.gravity.SIMULATED_MASSES says (made up)')
+    parser.add_argument('--hand-off', action='store_true',
+                        help="the operator's hand off the handle (no --operator)")
     parser.add_argument('--record', metavar='NPY',
                         help='on exit, save every received command as rows (time_ns, '
                              'counts axis 1..5, sequence or -1 when the frame has none) in '
@@ -337,7 +357,8 @@ def main(argv=None):
             pot_noise_counts=args.noise, baudrate=args.baud, seed=args.seed,
             drop_reply_rate=args.drop_rate, corrupt_byte_rate=args.corrupt_rate,
             record=RECORD_ALL if args.record else 10000, priority=args.priority,
-            transport='tcp' if args.tcp else 'pty')
+            transport='tcp' if args.tcp else 'pty', gravity=args.gravity,
+            dynamics=HAND_OFF if args.hand_off else DEFAULT_DYNAMICS)
     except ValueError as error:
         parser.error(str(error))
 

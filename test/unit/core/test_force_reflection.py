@@ -383,3 +383,39 @@ def test_submissions_and_changes_from_another_thread_never_mix_within_a_cycle():
         seen.add(out.actuator)
     thread.join()
     assert len(seen) >= 2
+
+
+HOLDING = (0.01, 0.5, 0.4, -0.02, 0.03)  # N*m, motor axes 1..5
+
+
+def test_holding_torques_are_added_whatever_the_wrench_while_force_is_enabled():
+    theta = random_theta(np.random.default_rng(21))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection()
+    # No wrench yet, then stale: the holding torques alone, the state saying why.
+    alone = fr.compute(rotation, jac, T0, holding=HOLDING)
+    assert alone.actuator == HOLDING and alone.state == 'no_wrench'
+    np.testing.assert_allclose(alone.joint, kinematics.joint_torques_from_actuator(
+        (*HOLDING, 0.0)))
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
+    with_wrench = fr.compute(rotation, jac, T0, holding=HOLDING)
+    without = fr.compute(rotation, jac, T0)
+    np.testing.assert_allclose(np.subtract(with_wrench.actuator, without.actuator), HOLDING)
+    stale = fr.compute(rotation, jac, T0 + 2 * TIMEOUT_NS, holding=HOLDING)
+    assert stale.actuator == HOLDING and stale.state == 'stale'
+    # Disabled: zero, the arm's weight included.
+    fr.enabled = False
+    assert_zero(fr.compute(rotation, jac, T0, holding=HOLDING), 'disabled')
+
+
+def test_holding_torques_stay_inside_the_torque_limits_and_take_the_joint_form():
+    theta = random_theta(np.random.default_rng(22))
+    _, rotation, jac = pose_and_jacobian(theta)
+    limited = reflection(torque_limits=(0.2,) * 5).compute(rotation, jac, T0, holding=HOLDING)
+    assert limited.saturated and max(map(abs, limited.actuator)) == pytest.approx(0.2)
+    np.testing.assert_allclose(np.array(limited.actuator) / 0.2, np.array(HOLDING) / 0.5)
+    joint_device = reflection(coupling='joint').compute(rotation, jac, T0, holding=HOLDING)
+    h1, h2, h3, h4, h5 = HOLDING
+    assert joint_device.actuator == pytest.approx((h1, h2 + h3, h3, h4, h5))
+    nan = reflection().compute(rotation, jac, T0, holding=(math.nan, 0, 0, 0, 0))
+    assert_zero(nan, 'rejected')

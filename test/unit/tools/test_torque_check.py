@@ -8,13 +8,12 @@ from kraft_master_driver.core.calibration import ArmCalibration, read_parameter_
 from kraft_master_driver.link.device import KmcDevice
 from kraft_master_driver.link.protocol import CODECS
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
-from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS
+from kraft_master_driver.simulation.master.model import DEFAULT_DYNAMICS, HAND_OFF
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools import calibrate, torque_check
 import pytest
 
 FRAMES = Path(calibrate.__file__).parent.parent / 'link' / 'frames'
-HAND_OFF = DEFAULT_DYNAMICS._replace(hand_stiffness=(0.0,) * 6, hand_damping=(0.0,) * 6)
 
 
 def hand_off(**options):
