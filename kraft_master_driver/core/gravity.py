@@ -17,7 +17,7 @@ as the dVRK's MTM gravity identification does (Fontanelli, Wang et al.).
 Torques here are those of the five motors (actuator coordinates, as the driver writes them)
 that hold the arm still against gravity.
 """
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 from kraft_master_driver.core import kinematics
 import numpy as np

@@ -549,7 +549,8 @@ def hand_off_simulator(args, gravity=False):
     try:
         return SimulatedKraftMaster(
             arm=args.arm, calibration=truth, codec=args.codec, operator='hold',
-            pot_noise_counts=args.sim_noise, dynamics=HAND_OFF, gravity=gravity)
+            pot_noise_counts=args.sim_noise, dynamics=HAND_OFF, gravity=gravity,
+            lockstep=torque_check.CYCLE_PERIOD if gravity else None)
     except ValueError as error:
         raise CalibrationError(f'--port sim: {error}') from None
 

@@ -4,12 +4,14 @@
 kraft_master_calibrate --identify-gravity: the arm's weight from static poses.
 
 The device holds each of a set of poses across the workspace under a PD hold through the link
-(the operator's hand off the handle). Once it rests, the torque the hold commands is what holds
-the arm up, plus whatever Coulomb friction takes. Each pose is reached once from above and once
-from below, so that friction, which opposes the last motion, enters with both signs and the
-least squares averages it out (the dVRK's MTM gravity identification approaches its poses from
-both directions for the same reason). The base parameters of core/gravity.py follow by least
-squares over every hold. A handle released with them (release_drift) shows what they are worth.
+(the operator's hand off the handle). The torque the hold commands is what holds the arm up,
+plus what Coulomb friction takes. Each pose is reached once from above and once from below, so
+that friction, which opposes the last motion, enters with both signs and the least squares
+averages it out (the dVRK's MTM gravity identification approaches its poses from both
+directions for the same reason). A swing of the held target (a dither) to average friction out
+was tried and not kept: on a loaded machine the Python loop's late cycles made it worse. The
+base parameters of core/gravity.py follow by least squares over every
+hold. A handle released with them (release_drift) shows what they are worth.
 """
 import math
 import time
@@ -35,15 +37,19 @@ POSES_DEG = (
 )
 
 
+SATURATED_CYCLES = 200  # a hold at its torque limit this long is refused
+
+
 class Settings(NamedTuple):
     """The hold and its timing: gains per actuator axis, torques in N*m, times in s."""
 
-    stiffness: tuple[float, ...] = (30.0, 30.0, 20.0, 3.0, 3.0)  # N*m/rad
-    damping: tuple[float, ...] = (1.5, 1.5, 1.0, 0.15, 0.15)  # N*m*s/rad
+    stiffness: tuple[float, ...] = (15.0, 15.0, 10.0, 1.5, 1.5)  # N*m/rad
+    damping: tuple[float, ...] = (1.0, 1.0, 0.7, 0.1, 0.1)  # N*m*s/rad
     velocity_cutoff: float = 20.0  # Hz, the low-pass on the pots' difference quotient
     torque_limit: float = 2.0  # N*m on any axis (the driver's torque_limits); more: refused
     approach: float = math.radians(4.0)  # each pose is reached from this far above and below
-    move: float = 0.6  # s to bring the target to the next point
+    move: float = 0.6  # s at least to bring the target to the next point
+    speed: float = math.radians(40.0)  # rad/s at most, on average, of the target's move
     settle: float = 0.6  # s held before the torques are averaged
     window: float = 0.3  # s of torques averaged
     max_error: float = math.radians(8.0)  # a hold further than this from its pose: refused
@@ -88,49 +94,64 @@ class PdHold:
         self.settings = settings
         self.q = self.link.cycle(torque_check.ZERO_TORQUES)
         self._velocity = np.zeros(AXES)
+        self._saturated = 0  # cycles in a row at the torque limit
 
     def run(self, duration: float, torques_at: Callable[[float, Array, Array], Sequence[float]],
             ) -> tuple[list[Array], list[Array]]:
-        """Cycle `duration` s sending torques_at(t, q, velocity); return the q and torques."""
+        """
+        Cycle `duration` s of cycles sending torques_at(t, q, velocity); return q and torques.
+
+        Time counts cycles (a late one is not made up for, as in the driver's loop), so the
+        hold does the same, only slower, on a loaded machine.
+        """
         angles, sent = [], []
         alpha = 1.0 - math.exp(-2.0 * math.pi * self.settings.velocity_cutoff * CYCLE_PERIOD)
         start = time.monotonic()
-        while True:
-            elapsed = time.monotonic() - start
-            if elapsed >= duration and angles:
-                return angles, sent
-            torques = np.asarray(torques_at(elapsed, self.q, self._velocity), dtype=float)
+        for cycle in range(max(1, round(duration / CYCLE_PERIOD))):
+            torques = np.asarray(torques_at(cycle * CYCLE_PERIOD, self.q, self._velocity),
+                                 dtype=float)
             q = self.link.cycle(tuple(torques.tolist()))
             self._velocity += alpha * ((q - self.q) / CYCLE_PERIOD - self._velocity)
             self.q = q
             angles.append(q)
             sent.append(torques)
-            # Paced as the driver's loop: a late cycle is not made up for.
-            time.sleep(max(0.0, start + len(angles) * CYCLE_PERIOD - time.monotonic()))
+            time.sleep(max(0.0, start + (cycle + 1) * CYCLE_PERIOD - time.monotonic()))
+        return angles, sent
 
-    def pd(self, target: Array, q: Array, velocity: Array) -> Array:
-        """Return the hold's torques toward `target`; CalibrationError beyond the limit."""
+    def pd(self, target: Array, q: Array, velocity: Array,
+           target_velocity: Array | float = 0.0) -> Array:
+        """
+        Return the hold's torques toward `target`, clipped at the limit.
+
+        CalibrationError when they stay at the limit for SATURATED_CYCLES.
+        """
         settings = self.settings
         torques = (np.asarray(settings.stiffness) * (target - q)
-                   - np.asarray(settings.damping) * velocity)
+                   + np.asarray(settings.damping) * (target_velocity - velocity))
         worst = int(np.argmax(np.abs(torques)))
-        if abs(torques[worst]) > settings.torque_limit:
+        if abs(torques[worst]) <= settings.torque_limit:
+            self._saturated = 0
+            return torques
+        self._saturated += 1
+        if self._saturated >= SATURATED_CYCLES:
             self.link.zero()
             raise CalibrationError(
-                f'refused: holding axis {worst + 1} took {torques[worst]:+.2f} N*m (limit '
-                f'{settings.torque_limit:g}): torques zeroed; is the hand off the handle and the '
-                'path clear?')
-        return torques
+                f'refused: holding axis {worst + 1} needed {torques[worst]:+.2f} N*m for '
+                f'{SATURATED_CYCLES * CYCLE_PERIOD:g} s (limit {settings.torque_limit:g}): '
+                'torques zeroed; is the hand off the handle and the path clear?')
+        return np.clip(torques, -settings.torque_limit, settings.torque_limit)
 
     def move(self, goal: Array) -> None:
         """Bring the target smoothly from where the arm is to `goal`."""
         settings, start = self.settings, self.q.copy()
+        duration = max(settings.move, float(np.abs(goal - start).max()) / settings.speed)
 
         def moving(t, q, velocity):
-            share = min(1.0, t / settings.move)
-            share = share * share * (3.0 - 2.0 * share)  # smooth: no step in the target
-            return self.pd(start + share * (goal - start), q, velocity)
-        self.run(settings.move, moving)
+            # Smooth: no step in the target nor in its speed.
+            x = min(1.0, t / duration)
+            share, rate = x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x) / duration
+            return self.pd(start + share * (goal - start), q, velocity, rate * (goal - start))
+        self.run(duration, moving)
 
     def move_and_hold(self, goal: Array) -> Hold:
         """Move to `goal`, hold it until the arm rests, and average the torques."""
@@ -138,7 +159,7 @@ class PdHold:
         self.move(goal)
         angles, sent = self.run(settings.settle + settings.window,
                                 lambda t, q, velocity: self.pd(goal, q, velocity))
-        kept = int(round(settings.window / CYCLE_PERIOD))
+        kept = round(settings.window / CYCLE_PERIOD)
         q = np.mean(angles[-kept:], axis=0)
         if np.abs(q - goal).max() > settings.max_error:
             self.link.zero()

@@ -215,10 +215,11 @@ class DriverSession:
     """A simulated device in this process, the driver process on its pty, a client node."""
 
     def __init__(self, prefix, parameters=(), namespace=None, arm='right', domain_id=None,
-                 wrapper=(), params_file=None):
+                 wrapper=(), params_file=None, simulator_options=None):
         """Start all three; the client listens in the driver's namespace."""
         self.domain_id = domain_id or next_domain_id()
-        self.simulator = SimulatedKraftMaster(arm=arm, operator='hold')
+        self.simulator = SimulatedKraftMaster(arm=arm, operator='hold',
+                                              **(simulator_options or {}))
         self.port = port = self.simulator.start()
         parameters = [('port', port), ('arm', arm), *parameters]
         self.driver = DriverProcess(prefix, self.domain_id, parameters, namespace=namespace,

@@ -14,11 +14,14 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import WrenchStamped
 from harness.driver import (
-    DriverProcess, DriverSession, executable, installed_env, next_domain_id, RosClient, wait_for)
+    DriverProcess, DriverSession, executable, installed_env, next_domain_id, RosClient,
+    vector_parameter, wait_for)
 from kraft_master_driver.core import kinematics, rotations
 from kraft_master_driver.core.calibration import ArmCalibration
+from kraft_master_driver.core.gravity import GravityModel, SIMULATED_MASSES
 from kraft_master_driver.link import frame_description
 from kraft_master_driver.link.protocol import DEFAULT_TORQUE_SCALE
+from kraft_master_driver.simulation.master.model import HAND_OFF, Workspace
 import numpy as np
 import pytest
 from rcl_interfaces.msg import ParameterType
@@ -663,3 +666,34 @@ def test_several_wrench_sources_when_allowed(install_prefix):
         assert level(statuses[-1]) == OK
     finally:
         running.close()
+
+
+@pytest.mark.parametrize('compensated', [True, False])
+def test_gravity_compensation_holds_the_released_handle_up(install_prefix, compensated):
+    # The simulated links weigh and the hand is off the handle; the driver holds it up with
+    # the simulator's true parameters, or, without compensation, lets it sink.
+    true = GravityModel('right').base_parameters(SIMULATED_MASSES)
+    parameters = [('force_enabled_at_start', 'true'),
+                  ('gravity_compensation', str(compensated).lower()),
+                  ('gravity_parameters', vector_parameter(true))]
+    running = DriverSession(install_prefix, parameters, simulator_options={
+        'dynamics': HAND_OFF, 'gravity': True})
+    try:
+        client = running.client
+        client.spin(0.5)
+        start = wrist(client) if compensated else kinematics.forward(Workspace().home())[:3, 3]
+        client.spin(2.0)
+        moved = float(np.linalg.norm(wrist(client) - start))
+        if compensated:
+            assert moved < 0.005
+            assert 0.1 < client.joint_states[-1].effort[1] < 2.0  # the shoulder's share
+        else:
+            assert moved > 0.02
+    finally:
+        running.close()
+
+
+def wrist(client):
+    """Return the newest wrist position (m)."""
+    position = client.poses[-1].pose.position
+    return np.array([position.x, position.y, position.z])

@@ -56,7 +56,7 @@ class SimulatedKraftMaster:
                  torque_limit=None, command_timeout=0.1,
                  operator_period=2.0, drop_reply_rate=0.0, corrupt_byte_rate=0.0,
                  dynamics=DEFAULT_DYNAMICS, record=10000, priority=0, transport='pty',
-                 gravity=False):
+                 gravity=False, lockstep=None):
         """
         Configure the device; nothing runs until start().
 
@@ -73,7 +73,9 @@ class SimulatedKraftMaster:
         a pseudo-terminal behind a symlink; 'tcp': a TCP server on 127.0.0.1 that serves one
         host at a time, its port a pyserial URL socket://127.0.0.1:N. gravity: the links
         weigh core.gravity.SIMULATED_MASSES (made up); holding_torques() gives their true
-        torques.
+        torques. lockstep (s): the mechanics advance exactly this much after each command, not
+        with the clock (simulated time, as a host cycling at 1/lockstep Hz would see on an idle
+        machine): for tests of a loop's algorithm that must not depend on the machine's load.
         """
         self._transport = make_transport(transport, self._forget_in_flight)
         self.transport = transport
@@ -103,6 +105,7 @@ class SimulatedKraftMaster:
         self._operator = make_operator(operator, workspace, operator_period,
                                        np.random.default_rng(operator_seed))
         self.gravity = gravity
+        self.lockstep = lockstep
         self._gravity_model = GravityModel(arm) if gravity else None
         self.true_gravity = (None if self._gravity_model is None
                              else self._gravity_model.base_parameters(SIMULATED_MASSES))
@@ -241,7 +244,7 @@ class SimulatedKraftMaster:
         if self._electronics.watchdog(now):
             self._stats['timeouts'] += 1
         elapsed = now - self._model_time
-        if elapsed <= 0.0:
+        if elapsed <= 0.0 or self.lockstep:
             return
         self._model_time = now
         target = self._operator.target(0.0 if self._waits_for_host else now - self._start_time)
@@ -265,6 +268,11 @@ class SimulatedKraftMaster:
         # The pots were read when the command arrived: answer first, then drive the motors.
         self._answer(command.sequence, clamped, now)
         self._electronics.drive(command.counts, now)
+        if self.lockstep:
+            with self._model_lock:
+                self._model.step(self.lockstep, self._operator.target(
+                    self._model_time - self._start_time))
+            self._model_time += self.lockstep
         if self._waits_for_host:
             self._waits_for_host = False
             self._start_time = now

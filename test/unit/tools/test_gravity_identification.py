@@ -9,6 +9,7 @@ from kraft_master_driver.simulation.master.model import HAND_OFF
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 from kraft_master_driver.tools import calibrate, gravity_identification
 from kraft_master_driver.tools.gravity_identification import PdHold, POSES_DEG
+from kraft_master_driver.tools.torque_check import CYCLE_PERIOD
 import numpy as np
 import pytest
 
@@ -18,7 +19,7 @@ RELEASE_POSES = POSES_DEG[:10]
 def weighing_arm():
     """Return a simulated right arm whose links weigh, the operator's hand off (not started)."""
     return SimulatedKraftMaster(arm='right', dynamics=HAND_OFF, gravity=True,
-                                pot_noise_counts=1.0)
+                                pot_noise_counts=1.0, lockstep=CYCLE_PERIOD)
 
 
 def test_every_pose_is_inside_the_joint_limits_from_either_side():
