@@ -90,4 +90,3 @@ def test_a_recorded_session_with_a_fault_keeps_every_invariant(start_demo, tmp_p
     assert summary['checks']['energy never generated'].startswith('not checked: passivity off')
     fault = summary['faults']['recorded: bridge FAULT']
     assert fault['count'] == 1 and fault['side'] == 'arm', out
-
