@@ -172,6 +172,7 @@ class ForceReflection:
         self._hot = _hot_path(Settings())
         self._latest: WrenchInput | Rejection | None = None
         self._tripped: WrenchInput | None = None
+        self._cleared = False  # clear() took the wrench away: nothing, not even the weight
         self._expired: WrenchInput | None = None
         self._was_saturated = False
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
@@ -218,12 +219,14 @@ class ForceReflection:
         'rejected') until a valid wrench arrives, and is counted in `rejections`.
         """
         self._latest = admitted
+        self._cleared = False
         if isinstance(admitted, Rejection):
             self.rejections[admitted.reason] += 1
 
     def clear(self) -> None:
         """Forget the wrench: torques are zero (state 'no_wrench') until the next hold()."""
         self._latest = None
+        self._cleared = True
 
     @property
     def counters(self) -> dict[str, int]:
@@ -267,8 +270,10 @@ class ForceReflection:
         (1 - share) plus force_scale times the model's times share, then the centre terms; with
         no direct wrench to give (none yet, stale, refused) the model's alone.
         holding: the motor torques (N*m, actuator axes 1..5) that hold the arm up against its
-        weight (core/gravity.py), added whatever the wrench's state while force is enabled,
-        inside the torque limits.
+        weight (core/gravity.py): added to a wrench being reflected, or alone before any
+        wrench has come; a stale or refused wrench, clear() and disabled force give zero, the
+        weight included. At the torque limits the weight keeps its place (clamped per axis)
+        and the reflected torques are scaled down.
         """
         hot = self._hot
         settings = hot.settings
@@ -288,7 +293,9 @@ class ForceReflection:
             state = ACTIVE
         actuator_form = settings.coupling == 'actuator'
         if wrench is None:
-            if holding is None:
+            # The arm's weight alone only before any wrench: stale, refused or several sources
+            # refused (cleared) give zero, the weight included.
+            if holding is None or state != NO_WRENCH or self._cleared:
                 return _ZERO_OUTPUTS[state]
             # The port has nothing of this to book (the wrench's path idled it).
             return self._limited([0.0] * DRIVEN_AXES, holding, actuator_form, state, None, 0.0,
@@ -312,29 +319,41 @@ class ForceReflection:
     def _limited(self, torques: list[float], holding: Sequence[float] | None,
                  actuator_form: bool, state: str, tag: object, share: float,
                  port: Port | None, now_ns: int) -> TorqueOutput:
-        """Add the holding torques, refuse non-finite ones, scale into the torque limits."""
+        """
+        Add the holding torques, refuse non-finite ones, keep inside the torque limits.
+
+        The reflected torques are scaled down as one vector (keeping the force's direction) so
+        that, with the arm's weight added, no axis passes its limit; the weight itself is only
+        clamped, each axis on its own.
+        """
+        limits = self._hot.settings.torque_limits
+        weight, clamped = (0.0,) * DRIVEN_AXES, False
         if holding is not None:
             h1, h2, h3, h4, h5 = holding
             # Actuator axes; a device taking joint torques gets tau2 = tau_q2 + tau_q3.
-            torques = [t + h for t, h in zip(torques, (
-                h1, h2 if actuator_form else h2 + h3, h3, h4, h5))]
-        if not all(map(math.isfinite, torques)):
+            wanted = (h1, h2 if actuator_form else h2 + h3, h3, h4, h5)
+            weight = tuple(min(max(h, -limit), limit) for h, limit in zip(wanted, limits))
+            clamped = weight != wanted
+        if not all(map(math.isfinite, (*torques, *weight))):
             self._non_finite_results += 1
             if port is not None:
                 port.scaled(0.0)  # nothing reflected after all
             return self._idle(REJECTED, port, now_ns)
-        limits = self._hot.settings.torque_limits
-        saturated = any(abs(tau) > limit for tau, limit in zip(torques, limits))
+        # The largest share of the reflected torques that each axis's headroom allows.
+        factor = min([1.0] + [(limit - math.copysign(w, tau)) / abs(tau)
+                              for tau, w, limit in zip(torques, weight, limits)
+                              if abs(tau + w) > limit])
+        saturated = factor < 1.0 or clamped
         if saturated:
-            # One factor for the whole vector keeps its direction; the clamp only trims rounding.
-            peak = max(abs(tau) / limit for tau, limit in zip(torques, limits))
-            torques = [min(max(tau / peak, -limit), limit) for tau, limit in zip(torques, limits)]
-            if port is not None:
-                port.scaled(1.0 / peak)
+            if port is not None and factor < 1.0:
+                port.scaled(factor)
             self._saturated_cycles += 1
             if not self._was_saturated:
                 self._saturation_events += 1
         self._was_saturated = saturated
+        # The clamp only trims rounding.
+        torques = [min(max(tau * factor + w, -limit), limit)
+                   for tau, w, limit in zip(torques, weight, limits)]
         t1, t2, t3, t4, t5 = torques
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
         joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)

@@ -90,7 +90,8 @@ PARAMETERS = {
                             read_only=False, low=0.0, high=100.0),
     'gravity_compensation': Spec(False, 'Add the motor torques that hold the arm up against '
                                  'its weight (from gravity_parameters) while force output is '
-                                 "enabled, whatever the wrench's state, inside torque_limits.",
+                                 'enabled: alone before any wrench, with a live one; zero when '
+                                 'the wrench is stale or refused.',
                                  read_only=False),
     'gravity_parameters': Spec([0.0] * len(BASE_NAMES), "The arm's gravity base parameters "
                                f'{", ".join(BASE_NAMES)} (kg*m), as kraft_master_calibrate '

@@ -388,32 +388,58 @@ def test_submissions_and_changes_from_another_thread_never_mix_within_a_cycle():
 HOLDING = (0.01, 0.5, 0.4, -0.02, 0.03)  # N*m, motor axes 1..5
 
 
-def test_holding_torques_are_added_whatever_the_wrench_while_force_is_enabled():
+def test_holding_torques_are_added_to_a_live_wrench_and_alone_only_before_any():
     theta = random_theta(np.random.default_rng(21))
     _, rotation, jac = pose_and_jacobian(theta)
     fr = reflection()
-    # No wrench yet, then stale: the holding torques alone, the state saying why.
+    # No wrench yet: the arm's weight alone.
     alone = fr.compute(rotation, jac, T0, holding=HOLDING)
     assert alone.actuator == HOLDING and alone.state == 'no_wrench'
     np.testing.assert_allclose(alone.joint, kinematics.joint_torques_from_actuator(
         (*HOLDING, 0.0)))
+    # A live wrench: its torques and the weight.
     fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
     with_wrench = fr.compute(rotation, jac, T0, holding=HOLDING)
     without = fr.compute(rotation, jac, T0)
     np.testing.assert_allclose(np.subtract(with_wrench.actuator, without.actuator), HOLDING)
-    stale = fr.compute(rotation, jac, T0 + 2 * TIMEOUT_NS, holding=HOLDING)
-    assert stale.actuator == HOLDING and stale.state == 'stale'
-    # Disabled: zero, the arm's weight included.
+    # Stale, refused, cleared (several sources), disabled: zero, the weight included.
+    assert_zero(fr.compute(rotation, jac, T0 + 2 * TIMEOUT_NS, holding=HOLDING), 'stale')
+    fr.hold(WrenchAdmission().admit((math.nan,) * 6, BASE_FRAME, 0, T0, 0))
+    assert_zero(fr.compute(rotation, jac, T0, holding=HOLDING), 'rejected')
+    fr.clear()
+    assert_zero(fr.compute(rotation, jac, T0, holding=HOLDING), 'no_wrench')
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
+    assert fr.compute(rotation, jac, T0, holding=HOLDING).state == 'active'
     fr.enabled = False
     assert_zero(fr.compute(rotation, jac, T0, holding=HOLDING), 'disabled')
 
 
-def test_holding_torques_stay_inside_the_torque_limits_and_take_the_joint_form():
+def test_at_the_torque_limits_the_weight_stays_and_the_reflected_torques_give_way():
     theta = random_theta(np.random.default_rng(22))
     _, rotation, jac = pose_and_jacobian(theta)
-    limited = reflection(torque_limits=(0.2,) * 5).compute(rotation, jac, T0, holding=HOLDING)
-    assert limited.saturated and max(map(abs, limited.actuator)) == pytest.approx(0.2)
-    np.testing.assert_allclose(np.array(limited.actuator) / 0.2, np.array(HOLDING) / 0.5)
+    limits = (0.6,) * 5  # above the weight, below the weight and the wrench together
+    free = reflection().compute(rotation, jac, T0, holding=HOLDING)  # the weight alone
+    plain = reflection()
+    plain.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
+    reflected = np.array(plain.compute(rotation, jac, T0).actuator)  # no limits, no weight
+    fr = reflection(torque_limits=limits)
+    fr.hold(WrenchInput(WRENCH, BASE_FRAME, T0))
+    limited = fr.compute(rotation, jac, T0, holding=HOLDING)
+    assert limited.saturated
+    assert all(abs(tau) <= limit + 1e-12 for tau, limit in zip(limited.actuator, limits))
+    # What is left beyond the weight is the reflected torques times one factor below 1.
+    share = np.subtract(limited.actuator, free.actuator)
+    factor = share @ reflected / (reflected @ reflected)
+    assert 0.0 < factor < 1.0
+    np.testing.assert_allclose(share, factor * reflected, atol=1e-12)
+    # A weight beyond a limit is clamped on its axis alone.
+    heavy = reflection(torque_limits=(0.2,) * 5).compute(rotation, jac, T0, holding=HOLDING)
+    assert heavy.saturated and heavy.actuator == (0.01, 0.2, 0.2, -0.02, 0.03)
+
+
+def test_holding_torques_take_the_joint_form_and_non_finite_ones_are_refused():
+    theta = random_theta(np.random.default_rng(23))
+    _, rotation, jac = pose_and_jacobian(theta)
     joint_device = reflection(coupling='joint').compute(rotation, jac, T0, holding=HOLDING)
     h1, h2, h3, h4, h5 = HOLDING
     assert joint_device.actuator == pytest.approx((h1, h2 + h3, h3, h4, h5))

@@ -66,4 +66,5 @@ def test_identified_from_static_poses_the_arm_floats_released_at_ten_poses(tmp_p
         hold = PdHold(device, ArmCalibration.nominal('right'))
         drifts = [gravity_identification.release_drift(hold, model, base, pose)
                   for pose in RELEASE_POSES]
+        assert simulator.received[-1][1].counts == (0,) * 5  # left at zero torque
     assert max(drifts) <= 0.005, np.round(np.array(drifts) * 1000, 2)
