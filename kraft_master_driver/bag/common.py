@@ -16,6 +16,7 @@ JOINT_STATE = 'sensor_msgs/msg/JointState'
 POSE_STAMPED = 'geometry_msgs/msg/PoseStamped'
 WRENCH_STAMPED = 'geometry_msgs/msg/WrenchStamped'
 TWIST_STAMPED = 'geometry_msgs/msg/TwistStamped'
+VECTOR3_STAMPED = 'geometry_msgs/msg/Vector3Stamped'
 DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
 # The driver's topics, relative to its namespace, and their types.
 DRIVER_TOPICS = {

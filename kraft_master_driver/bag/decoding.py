@@ -4,16 +4,16 @@
 Raw CDR messages decoded into numpy arrays, a topic at a time (TopicData).
 
 Equal-length messages are stacked into (N, length) byte arrays, and the fixed-layout CDR of
-JointState, PoseStamped, WrenchStamped and TwistStamped is decoded with numpy, equal to
-rosbags' deserialisation message by message. Other types (DiagnosticArray) are deserialised
-one by one with rosbags. Malformed messages are counted and skipped, never raised.
+JointState, PoseStamped, WrenchStamped, TwistStamped and Vector3Stamped is decoded with numpy,
+equal to rosbags' deserialisation message by message. Other types (DiagnosticArray) are
+deserialised one by one with rosbags. Malformed messages are counted and skipped, never raised.
 """
 from collections.abc import Sequence
 import struct
 from typing import Any, Literal, NamedTuple
 
 from kraft_master_driver.bag.common import (
-    JOINT_STATE, POSE_STAMPED, TWIST_STAMPED, typestore, WRENCH_STAMPED)
+    JOINT_STATE, POSE_STAMPED, TWIST_STAMPED, typestore, VECTOR3_STAMPED, WRENCH_STAMPED)
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 from rosbags.serde import SerdeError
@@ -34,6 +34,7 @@ LAYOUTS: dict[str, _Fields] = {
     POSE_STAMPED: _HEADER + (('position', 3), ('orientation', 4)),
     WRENCH_STAMPED: _HEADER + (('force', 3), ('torque', 3)),
     TWIST_STAMPED: _HEADER + (('linear', 3), ('angular', 3)),
+    VECTOR3_STAMPED: _HEADER + (('vector', 3),),
 }
 
 

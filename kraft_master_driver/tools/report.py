@@ -17,10 +17,15 @@ pots with that calibration and drawn against the recorded ones; the CSV then has
 columns as well. Decoding (bag/reader.py) and everything after it work on whole
 arrays: a bag of a million samples takes some 15 s (benchmarks/report.py).
 
+With --check it draws nothing: it checks the invariants of a teleoperation session on the
+bag (session_check.py), prints one line per violation and a table of the faults, and exits 1
+on any violation, 0 when all hold.
+
 This module is the command line: report_data.py reads the bag, report_tables.py writes the
 CSV and the summary, and report_plots.py draws the figure.
 """
 import argparse
+import json
 from pathlib import Path
 import sys
 import time
@@ -31,6 +36,7 @@ from kraft_master_driver.core.calibration import ArmCalibration, CalibrationErro
 from kraft_master_driver.tools.report_data import read_arms, recalibrate
 from kraft_master_driver.tools.report_plots import draw
 from kraft_master_driver.tools.report_tables import summary, write_csv
+from kraft_master_driver.tools.session_check import check_session, read_faults
 
 
 def _parser():
@@ -50,12 +56,62 @@ def _parser():
                              'repeatable (default: every arm found)')
     parser.add_argument('--link-lengths', nargs=4, type=float, metavar=('L1', 'L2', 'L3', 'L4'),
                         help='link lengths (m) for the recalibrated poses (default: nominal)')
+    check = parser.add_argument_group(
+        'checking a teleoperation session (doc/safety.md)')
+    check.add_argument('--check', action='store_true',
+                       help="check the session's invariants instead of drawing: one line per "
+                            'violation, a table of the faults; exit 1 on any violation')
+    check.add_argument('--faults', metavar='JSONL',
+                       help='with --check: the faults injected, one JSON object a line: kind, '
+                            "side (master, arm, link, clock), start, end (s, the bag's clock)")
+    check.add_argument('--json', metavar='OUT', help='with --check: write the summary here')
     return parser
 
 
+def _milliseconds(value):
+    return '-' if value is None else f'{value:.1f}'
+
+
+def check(args):
+    """Check the session in args.bag; print violations and the table; return the exit code."""
+    try:
+        faults = None if args.faults is None else [
+            fault._asdict() for fault in read_faults(args.faults)]
+        result = check_session(args.bag, faults)
+    except (SessionError, ValueError, OSError) as error:
+        print(f'kraft_master_report: {error}', file=sys.stderr)
+        return 1
+    for line in result.violations:
+        print(line)
+    outcome = result.summary
+    print(f'{args.bag}: {", ".join(outcome["namespaces"])}, {outcome["start_s"]:.3f} to '
+          f'{outcome["end_s"]:.3f} s')
+    print(f'  {"fault":<36} {"side":<6} {"n":>4} {"to safe max/p99 (ms)":>21} '
+          f'{"to recovery max/p99 (ms)":>25}')
+    for kind, figures in outcome['faults'].items():
+        safe, back = figures['time_to_safe_ms'], figures['time_to_recovery_ms']
+        print(f'  {kind:<36} {figures["side"]:<6} {figures["count"]:>4} '
+              f'{_milliseconds(safe["max"]) + " / " + _milliseconds(safe["p99"]):>21} '
+              f'{_milliseconds(back["max"]) + " / " + _milliseconds(back["p99"]):>25}')
+    for name, state in outcome['checks'].items():
+        told = state if isinstance(state, str) else (
+            f'{state["violations"]} violations on {", ".join(state["ran_on"])}')
+        print(f'  {name}: {told}')
+    if args.json:
+        try:
+            Path(args.json).write_text(json.dumps(outcome, indent=1) + '\n', encoding='utf-8')
+        except OSError as error:
+            print(f'kraft_master_report: cannot write {args.json}: {error}', file=sys.stderr)
+            return 1
+    print(f'{len(result.violations)} violations' if result.violations else 'all invariants hold')
+    return 1 if result.violations else 0
+
+
 def main(argv=None):
-    """Write the report of a bag; return 0, or 1 when the bag or calibration is unusable."""
+    """Write the report of a bag (or --check it); return 0, or 1 when unusable (or violated)."""
     args = _parser().parse_args(argv)
+    if args.check:
+        return check(args)
     started = time.monotonic()
     calibration = None
     try:

@@ -111,26 +111,40 @@ def _status_namespace(name):
     return '/' + node.rpartition('/')[0] if '/' in node else None
 
 
-def _diagnostics(namespace, topics):
+def node_statuses(namespace, topics, belongs):
     """
-    Return (receive time, {key: value}) of the driver's status in `namespace`, in time order.
+    Return (receive time, stamp, {key: value}) of one node's status in `namespace`, in order.
 
     topics maps each diagnostics topic read ('<namespace>/diagnostics', '/diagnostics') to
-    its TopicData. A status is the driver's when it has link counters and its name carries
-    the node's namespace, or a bare node name on the namespace's own diagnostics topic.
+    its TopicData; times are int ns, the stamp the array's header stamp. A status is the
+    node's when belongs({key: value}) is true and its name carries the node's namespace, or a
+    bare node name on the namespace's own diagnostics topic.
     """
     entries = []
     for topic, data in topics.items():
         for log_time, message in zip(data.log_time.tolist(), data.messages):
+            stamp = message.header.stamp
             for status in message.status:
                 values = {pair.key: pair.value for pair in status.values}
                 owner = _status_namespace(status.name)
-                if any(key.startswith('link ') for key in values) and (
+                if belongs(values) and (
                         (owner or '/') == (namespace or '/') or
                         (owner is None and topic == f'{namespace}/diagnostics')):
-                    entries.append((log_time, values))
+                    entries.append((log_time, stamp.sec * 1_000_000_000 + stamp.nanosec,
+                                    values))
                     break
     return sorted(entries, key=lambda entry: entry[0])
+
+
+def is_driver_status(values):
+    """Return whether a status's values are the driver's: it has link counters."""
+    return any(key.startswith('link ') for key in values)
+
+
+def _diagnostics(namespace, topics):
+    """Return (receive time, {key: value}) of the driver's status in `namespace`, in order."""
+    return [(log_time, values) for log_time, _, values
+            in node_statuses(namespace, topics, is_driver_status)]
 
 
 def _arm_of(namespace, calibration, position, wrist):

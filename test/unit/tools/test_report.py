@@ -6,7 +6,8 @@ import math
 
 from harness.session_bags import SAMPLES, write_bag
 from kraft_master_driver.bag.common import (
-    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, typestore, WRENCH_STAMPED)
+    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, typestore, VECTOR3_STAMPED,
+    WRENCH_STAMPED)
 from kraft_master_driver.bag.decoding import decode_cdr, LAYOUTS
 from kraft_master_driver.bag.reader import read_topics
 from kraft_master_driver.bag.recorder import BagRecorder, qos_profile
@@ -51,6 +52,8 @@ def random_message(msgtype, rng):
         return TYPES[msgtype](header=header(rng), pose=TYPES['geometry_msgs/msg/Pose'](
             position=vector('Point'),
             orientation=TYPES['geometry_msgs/msg/Quaternion'](x=qx, y=qy, z=qz, w=qw)))
+    if msgtype == VECTOR3_STAMPED:
+        return TYPES[msgtype](header=header(rng), vector=vector('Vector3'))
     if msgtype == WRENCH_STAMPED:
         return TYPES[msgtype](header=header(rng), wrench=TYPES['geometry_msgs/msg/Wrench'](
             force=vector('Vector3'), torque=vector('Vector3')))
@@ -68,6 +71,8 @@ def expected_fields(message):
     elif message.__msgtype__ == POSE_STAMPED:
         p, q = message.pose.position, message.pose.orientation
         fields.update(position=[p.x, p.y, p.z], orientation=[q.x, q.y, q.z, q.w])
+    elif message.__msgtype__ == VECTOR3_STAMPED:
+        fields.update(vector=[message.vector.x, message.vector.y, message.vector.z])
     else:
         wrench = getattr(message, 'wrench', None)
         pairs = ((wrench.force, wrench.torque) if wrench else

@@ -1,0 +1,177 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""The session checker (kraft_master_report --check) on bags written message by message."""
+import json
+
+from harness.crafted_session import (
+    BREAKS, ENABLE_AT, FAULT_AT, JUMP_AT, LOST_AT, NS, session_messages, state, STRING, T0,
+    TYPES, write_session)
+from kraft_master_driver.bag.common import SessionError, TWIST_STAMPED
+from kraft_master_driver.tools import report
+from kraft_master_driver.tools.session_check import check_session, read_faults
+from kraft_master_driver.tools.session_invariants import frames_lost, Limits
+import numpy as np
+import pytest
+
+# break -> (check, topic, the earliest and latest time its first violation may name)
+FIRES = {
+    'jump': ('command steps', 'servo_cp', JUMP_AT, JUMP_AT + 0.01),
+    'fault_move': ('holds after a fault', 'servo_cp', FAULT_AT + 0.5, FAULT_AT + 0.51),
+    'torque_on': ('torque zero after a fault', 'joint_states', FAULT_AT + 0.2, FAULT_AT + 0.21),
+    'torque_kick': ('torque steps as force comes back', 'joint_states', ENABLE_AT,
+                    ENABLE_AT + 0.01),
+    'lost': ('pot frames all recorded', 'pots', LOST_AT, LOST_AT + 0.6),
+    'energy': ('energy never generated', 'master_energy', T0 + 3.5, T0 + 3.51),
+}
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_session_that_keeps_every_invariant_passes_every_check(tmp_path, storage):
+    write_session(tmp_path / 'bag', storage=storage)
+    result = check_session(tmp_path / 'bag')
+    assert result.violations == []
+    assert result.summary['namespaces'] == [NS]
+    assert all(outcome == {'ran_on': [NS], 'violations': 0}
+               for outcome in result.summary['checks'].values()), result.summary['checks']
+    fault = result.summary['faults']['recorded: bridge FAULT']
+    assert fault['count'] == 1 and fault['side'] == 'arm' and fault['not_recovered'] == 0
+    json.dumps(result.summary)  # JSON-able
+
+
+@pytest.mark.parametrize('broken', BREAKS)
+def test_each_broken_invariant_is_found_named_by_its_time_and_topic(tmp_path, broken):
+    write_session(tmp_path / 'bag', [broken])
+    result = check_session(tmp_path / 'bag')
+    check, topic, earliest, latest = FIRES[broken]
+    assert result.violations, broken
+    fired = {name for name, outcome in result.summary['checks'].items()
+             if outcome['violations']}
+    assert fired == {check}, result.violations
+    time, _, where = result.violations[0].partition(' s ')
+    assert earliest <= float(time) <= latest, result.violations[0]
+    assert where.startswith(f'{NS}/{topic}: '), result.violations[0]
+
+
+def test_a_hold_at_the_measured_arm_is_no_jump_but_the_same_step_elsewhere_is(tmp_path):
+    # At the FAULT the command steps 20 mm, beyond the 12.5 mm limit, to where the arm is.
+    messages = session_messages()
+    write_session(tmp_path / 'bag', messages=messages)
+    assert check_session(tmp_path / 'bag').violations == []
+    far = [m for m in messages if not m[0].endswith('measured_cp')]
+    write_session(tmp_path / 'far', messages=far)
+    lines = check_session(tmp_path / 'far').violations
+    assert len(lines) == 1 and 'stepped 20.00 mm' in lines[0], lines
+    assert abs(float(lines[0].split()[0]) - FAULT_AT) < 0.01
+
+
+def test_the_limits_come_from_the_settings_and_unknown_settings_are_refused(tmp_path):
+    write_session(tmp_path / 'bag')
+    # The arm follows at 0.1 m/s: 0.5 mm a message, beyond 0.2 m/s x 2 ms.
+    slow = check_session(tmp_path / 'bag', settings={'max_linear_speed': 0.2,
+                                                     'max_step_s': 0.002})
+    assert slow.violations and all('servo_cp' in line for line in slow.violations)
+    with pytest.raises(ValueError, match='unknown setting max_speed'):
+        check_session(tmp_path / 'bag', settings={'max_speed': 1.0})
+
+
+def test_a_given_fault_that_makes_the_force_untrue_needs_zero_torque(tmp_path):
+    write_session(tmp_path / 'bag')
+    blackout = {'kind': 'link blackout', 'side': 'link', 'start': T0 + 0.8, 'end': T0 + 1.2}
+    result = check_session(tmp_path / 'bag', faults=[blackout])
+    assert len(result.violations) == 1
+    assert 'link blackout (link) began at 100.800 s' in result.violations[0]
+    assert result.summary['faults']['link blackout']['count'] == 1
+    master = dict(blackout, side='master', kind='device stall')
+    assert check_session(tmp_path / 'bag', faults=[master]).violations == []
+    told = dict(blackout, force_untrue=False)
+    assert check_session(tmp_path / 'bag', faults=[told]).violations == []
+
+
+def test_bad_faults_are_refused_naming_the_fault_or_the_line(tmp_path):
+    write_session(tmp_path / 'bag')
+    with pytest.raises(ValueError, match='fault 1: needs kind'):
+        check_session(tmp_path / 'bag', faults=[{'side': 'arm', 'start': 1, 'end': 2}])
+    with pytest.raises(ValueError, match="fault 1: side must be one of .* got 'wrist'"):
+        check_session(tmp_path / 'bag', faults=[{'kind': 'x', 'side': 'wrist', 'start': 1,
+                                                 'end': 2}])
+    (tmp_path / 'faults.jsonl').write_text('{"kind": "x", "side": "arm", "start": 1, "end": 2}'
+                                           '\n\n{oops\n')
+    with pytest.raises(ValueError, match='faults.jsonl line 3: not JSON'):
+        read_faults(tmp_path / 'faults.jsonl')
+
+
+def test_a_bag_without_session_topics_is_refused(tmp_path):
+    messages = [('/other', STRING, T0, state('x'))]
+    write_session(tmp_path / 'bag', messages=messages)
+    with pytest.raises(SessionError, match='none of the session topics'):
+        check_session(tmp_path / 'bag')
+
+
+def twist(t, linear):
+    """Return a TwistStamped of `linear` (m/s), no rotation."""
+    sec, nanosec = divmod(round(t * 1e9), 1_000_000_000)
+    vector = TYPES['geometry_msgs/msg/Vector3']
+    return TYPES[TWIST_STAMPED](
+        header=TYPES['std_msgs/msg/Header'](
+            stamp=TYPES['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
+            frame_id='base_link'),
+        twist=TYPES['geometry_msgs/msg/Twist'](linear=vector(x=linear, y=0.0, z=0.0),
+                                               angular=vector(x=0.0, y=0.0, z=0.0)))
+
+
+def test_twist_mode_keeps_the_speed_limit_and_a_zero_twist_in_fault(tmp_path):
+    topic = f'{NS}/servo_cv'
+    states = [(f'{NS}/operating_state', STRING, T0, state('ENABLED')),
+              (f'{NS}/operating_state', STRING, T0 + 1.0, state('FAULT: tracking'))]
+    good = [(topic, TWIST_STAMPED, T0 + i / 100, twist(T0 + i / 100, 0.2 if i < 100 else 0.0))
+            for i in range(1, 200)]
+    write_session(tmp_path / 'good', messages=states + good)
+    assert check_session(tmp_path / 'good').violations == []
+    fast = [m if abs(m[2] - (T0 + 0.5)) > 1e-6 else (topic, TWIST_STAMPED, m[2],
+                                                     twist(m[2], 0.3)) for m in good]
+    moving = [m if abs(m[2] - (T0 + 1.5)) > 1e-6 else (topic, TWIST_STAMPED, m[2],
+                                                       twist(m[2], 0.01)) for m in good]
+    write_session(tmp_path / 'fast', messages=states + fast)
+    write_session(tmp_path / 'moving', messages=states + moving)
+    assert [line.split(': ')[1][:5] for line in check_session(tmp_path / 'fast').violations
+            ] == ['twist']
+    lines = check_session(tmp_path / 'moving').violations
+    assert len(lines) == 1 and lines[0].startswith('101.500 s /right/servo_cv: a twist of')
+
+
+LIMITS = Limits(0.25, 1.0, 0.05, 0.002, 0.05, 0.11, 1e-9, 0.5, 1.0, 2, 0.003, 0.01)
+
+
+def test_a_restarted_driver_counts_anew_without_a_frame_lost():
+    stamps = np.arange(1000, dtype=np.int64) * 1_000_000  # 1 kHz for 1 s
+    # A driver counting 7 frames before the bag, restarted at 0.5 s (counting from 0 again).
+    counts = [(i / 10, i * 100_000_000, i * 100 + 1 + 7) for i in range(1, 5)]
+    counts += [(i / 10, i * 100_000_000, (i - 5) * 100 + 1) for i in range(5, 10)]
+    assert frames_lost(stamps, counts, '/pots', LIMITS) == ([], 0)
+    dropped = np.delete(stamps, np.arange(700, 710))
+    found, lost = frames_lost(dropped, counts, '/pots', LIMITS)
+    assert lost == 10 and len(found) == 1
+    assert found[0].line == ('0.800 s /pots: 10 pot frames the driver counted as published '
+                             'between 0.500 s and 0.800 s are not in the bag')
+
+
+def test_report_check_prints_each_violation_and_exits_1_on_any(tmp_path, capsys):
+    write_session(tmp_path / 'good')
+    write_session(tmp_path / 'bad', ['jump', 'lost'])
+    assert report.main(['--check', str(tmp_path / 'good'), '--json',
+                        str(tmp_path / 'good.json')]) == 0
+    out = capsys.readouterr().out
+    assert out.rstrip().endswith('all invariants hold')
+    assert 'recorded: bridge FAULT' in out and 'command steps: 0 violations on /right' in out
+    assert json.loads((tmp_path / 'good.json').read_text())['violations'] == []
+    (tmp_path / 'faults.jsonl').write_text(json.dumps(
+        {'kind': 'wrist sensor dropout', 'side': 'arm', 'start': FAULT_AT - 0.1,
+         'end': FAULT_AT + 0.4}) + '\n')
+    assert report.main(['--check', str(tmp_path / 'bad'), '--faults',
+                        str(tmp_path / 'faults.jsonl')]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert sum('/right/servo_cp: the command stepped' in line for line in lines) == 2
+    assert sum('/right/pots: 5 pot frames' in line for line in lines) == 1
+    assert any(line.split()[:1] == ['wrist'] for line in lines) and lines[-1] == '3 violations'
+    assert report.main(['--check', str(tmp_path / 'missing')]) == 1
+    assert 'kraft_master_report: ' in capsys.readouterr().err
