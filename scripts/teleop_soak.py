@@ -14,7 +14,7 @@ restarted), the link (blackout, delay step, loss burst) and a clock's stamps. At
 process is stopped and what was left behind is listed, the faults are written as JSON lines and
 the recorded session is checked by kraft_master_driver.tools.session_check. The summary (JSON
 and a table) has the faults by kind with their time to safe and to recovery (max and p99),
-the invariants' violations, the processes' RSS slopes and exit codes; with --figure, a plot of
+the invariants' violations, the processes' RSS slopes and exit codes, and a plot of
 one fault of each kind. Exit 1 if anything failed. `make teleop-soak` runs it.
 """
 import argparse
@@ -138,10 +138,11 @@ def main(argv=None):
                         help='directory of the bag, logs, faults and summary '
                              '(default build/teleop_soak/<time>)')
     parser.add_argument('--figure', type=pathlib.Path,
-                        help='plot one fault of each kind into this PNG')
+                        help='plot one fault of each kind into this PNG (default: figure.png in --out)')
     args = parser.parse_args(argv)
     out = args.out or REPO / 'build' / 'teleop_soak' / time.strftime('%Y%m%d-%H%M%S')
     out.mkdir(parents=True, exist_ok=True)
+    figure = args.figure or out / 'figure.png'
     print(f'load average at the start: {[round(v, 2) for v in os.getloadavg()]}; writing to {out}')
     soak = Soak(out, args.seed, args.duration, args.longest_fault)
     seconds = soak.run()
@@ -152,10 +153,9 @@ def main(argv=None):
     (out / 'summary.json').write_text(json.dumps(figures, indent=2, default=str))
     (out / 'table.md').write_text(table(figures) + '\n')
     print_summary(figures)
-    if args.figure:
-        from soak_figure import draw  # beside this script: matplotlib only when asked
-        draw(soak.site.bag, soak.faults, args.figure)
-        print(f'figure: {args.figure}')
+    from soak_figure import draw  # beside this script
+    draw(soak.site.bag, soak.faults, figure)
+    print(f'figure: {figure}')
     print(f'summary: {out / "summary.json"}')
     return 0 if passed(figures) else 1
 

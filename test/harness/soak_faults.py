@@ -8,8 +8,9 @@ function that injects it on a soak_site.Site and returns (start, end) in time.ti
 the clock the recorder stamps messages with: start when the fault took effect, end when it was
 cleared (for a kill and restart, when the new process was started). `force_untrue`: whether the
 force the master feels is no longer the arm's while it lasts (the wrist sensor's faults, a
-stalled or dead arm, a link down); a stuck sensor reading looks like a true one, and nothing on
-the path can tell it apart, so it is not counted as untrue (doc/safety.md says so).
+stalled or dead arm, a link down). Not counted as untrue: a stuck sensor reading, which looks
+like a true one and nothing on the path can tell apart (doc/safety.md says so), and a loss
+burst, through which the messages that come are true.
 """
 import math
 import random
@@ -89,12 +90,17 @@ def arm_stall(soak, duration, _rng):
     return start, time.time()
 
 
-def restart(name):
-    """Return the injection of a SIGKILL and restart of child `name`."""
-    def inject(soak, _duration, _rng):
-        start = soak.site.restart(name)
-        return start, time.time()
-    return inject
+def restart_arm(soak, _duration, _rng):
+    """The arm's process is SIGKILLed and started again: over once it publishes its pose."""
+    start = soak.site.restart('arm', lambda killed: soak.operator.arm_stamp > killed)
+    return start, time.time()
+
+
+def restart_bridge(soak, _duration, _rng):
+    """The bridge's process is SIGKILLed and started again: over once it says its state."""
+    soak.operator.state = ''
+    start = soak.site.restart('bridge', lambda _killed: soak.operator.state)
+    return start, time.time()
 
 
 def link(soak, duration, values, cleared):
@@ -148,11 +154,11 @@ KINDS = [
     Kind('wrist: spike over the limit', 'arm', 0.05, 1.0, sensor('spike'), True),
     Kind('wrist: frame change', 'arm', 0.2, 2.0, sensor('frame'), True),
     Kind('arm: controller stall', 'arm', 0.05, 2.0, arm_stall, True),
-    Kind('arm: killed and restarted', 'arm', 0.0, 0.0, restart('arm'), True),
-    Kind('bridge: killed and restarted', 'arm', 0.0, 0.0, restart('bridge'), True),
+    Kind('arm: killed and restarted', 'arm', 0.0, 0.0, restart_arm, True),
+    Kind('bridge: killed and restarted', 'arm', 0.0, 0.0, restart_bridge, True),
     Kind('link: blackout', 'link', 0.1, 10.0, blackout, True),
     Kind('link: delay step', 'link', 2.0, 8.0, delay_step),
-    Kind('link: loss burst', 'link', 1.0, 5.0, loss_burst, True),
+    Kind('link: loss burst', 'link', 1.0, 5.0, loss_burst),
     Kind('clock: stamp skew', 'clock', 1.0, 5.0, clock_skew),
 ]
 

@@ -25,7 +25,10 @@ import time
 from harness import dds_shm, REPO
 from harness.demo import session_processes
 from harness.driver import ClientNode, next_domain_id, wait_for
-from kraft_master_driver.tools.demo import MUJOCO_BRIDGE, MUJOCO_DRIVER, ros_parameters
+from kraft_master_driver.nodes.ros_io import take_newest
+from kraft_master_driver.tools.demo import HOME, MUJOCO_BRIDGE, MUJOCO_DRIVER, ros_parameters
+from geometry_msgs.msg import PoseStamped
+import rclpy
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -37,8 +40,13 @@ PYTHON = [sys.executable, '-m']
 START_S = 120.0  # a start-up on a loaded machine
 STOP_S = 30.0  # a node's own guard ends a stuck shutdown in 10 s
 MAX_DELAY_S = 0.5  # the largest one-way delay step: the driver admits wrenches that old
-# The bridge as the demo runs it on the Panda (2 s timeouts for a loaded machine), passivity on.
-BRIDGE = {**MUJOCO_BRIDGE, 'passivity': 'true'}
+# The bridge as the demo runs it on the Panda (2 s timeouts for a loaded machine), passivity on,
+# its box 5 cm taller: a stale pose that comes back registers the master wherever the hand is,
+# and the arm's height drifts by up to the touch's depth each time.
+BRIDGE = {**MUJOCO_BRIDGE, 'passivity': 'true',
+          'workspace_max': [*MUJOCO_BRIDGE['workspace_max'][:2],
+                            MUJOCO_BRIDGE['workspace_max'][2] + 0.05]}
+TOP_OF_STROKE = 0.005  # m from home: the operator registers the master (enable, clutch) there
 DRIVER = {**MUJOCO_DRIVER, 'force_enabled_at_start': 'true', 'passivity': 'true',
           'allow_multiple_wrench_sources': 'true'}
 RELAYS = {'to_slave.topics': '[pose, master_energy]',
@@ -173,11 +181,14 @@ class Site:
         assert answer and answer[0] == 'ok', f'soak_master: {answer}'
         return float(answer[1])
 
-    def restart(self, name):
-        """SIGKILL a child and start it again; return the time of the kill."""
+    def restart(self, name, started):
+        """SIGKILL a child, start it again; return the kill's time, once started(dead) holds."""
         killed = time.time()
         self.children[name].kill()
+        dead = time.time()  # what the killed process sent is stamped before this
         self.children[name].start()
+        wait_for(lambda: started(dead) or not self.children[name].alive(), START_S)
+        assert self.children[name].alive(), f'{name} did not start again: see {self.work}'
         return killed
 
     def rss(self):
@@ -192,7 +203,8 @@ class Site:
         for name in order:
             if name in self.children:
                 child = self.children[name]
-                child.pause(False) if child.alive() else None
+                if child.alive():
+                    child.pause(False)
                 codes[name] = child.stop(signal.SIGINT)
                 child.close()
         return codes
@@ -204,9 +216,14 @@ class Site:
             for pid in child.pids:
                 found += [f'{name}: process {p} of session {pid} still runs'
                           for p in session_processes(pid)]
-        port_dir = os.path.dirname(self.port)
-        if port_dir and os.path.exists(port_dir):
-            found.append(f"the simulator's pty directory {port_dir} is still there")
+        ours = {pid for child in self.children.values() for pid in child.pids}
+        for directory in sorted(temp_dirs()):
+            # The pty behind the port's symlink: /proc/<the simulator's pid>/fd/<n>.
+            link = os.readlink(os.path.join(directory, 'tty')) if os.path.islink(
+                os.path.join(directory, 'tty')) else ''
+            if directory == os.path.dirname(self.port) or link.split('/')[2:3] in (
+                    [str(pid)] for pid in ours):
+                found.append(f"the simulator's pty directory {directory} is still there")
         noted = self.watcher.stop()
         left = dds_shm.orphaned({group for group in noted if '_port' not in group})
         dds_shm.remove(left)
@@ -225,19 +242,28 @@ class Operator:
 
     def __init__(self, site):
         """Join both domains with a node each, spun by a thread of this process."""
-        self.master_node = ClientNode(site.master_domain, 'soak_operator')
-        self.arm_node = ClientNode(site.arm_domain, 'soak_operator')
+        self.master_node = ClientNode(site.master_domain, 'soak_operator_master')
+        self.arm_node = ClientNode(site.arm_domain, 'soak_operator_arm')
         node = self.arm_node.node
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.state = ''
         node.create_subscription(String, 'operating_state', self._on_state, QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.arm_stamp = 0.0  # of the newest measured_cp, time.time() s
+        node.create_subscription(PoseStamped, 'measured_cp', self._on_arm_pose, QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.clutch_pub = node.create_publisher(Bool, 'clutch', reliable)
         self.enable_client = node.create_client(SetBool, 'enable')
         self.parameters = {
             'arm': AsyncParameterClient(node, '/kraft_master_arm_sim'),
             'link': AsyncParameterClient(self.master_node.node, '/kraft_master_link_emulator')}
+        # Not spun: the newest master pose is taken when asked (the demo's Readout does so).
+        self._pose_node = rclpy.create_node('soak_operator_eyes', context=self.master_node.context)
+        self._pose = self._pose_node.create_subscription(
+            PoseStamped, 'pose', lambda _msg: None,
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self._master_z = None
         self._pending = None
         self._stopping = threading.Event()
         self._lock = threading.Lock()
@@ -247,11 +273,21 @@ class Operator:
     def _on_state(self, msg):
         self.state = msg.data
 
+    def _on_arm_pose(self, msg):
+        self.arm_stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
     def _spin(self):
         while not self._stopping.is_set():
             with self._lock:
                 for client in (self.arm_node, self.master_node):
                     client.executor.spin_once(timeout_sec=0.005)
+
+    def at_top_of_stroke(self):
+        """Return whether the master's wrist is at home's height, where the task's moves are."""
+        pose = take_newest(self._pose)
+        if pose is not None:
+            self._master_z = pose.pose.position.z
+        return self._master_z is not None and abs(self._master_z - HOME[2]) < TOP_OF_STROKE
 
     def following(self):
         """Return whether the bridge follows the master (ENABLED, not holding)."""
@@ -282,5 +318,6 @@ class Operator:
         """Stop spinning and leave both domains."""
         self._stopping.set()
         self._thread.join(timeout=10.0)
+        self._pose_node.destroy_node()
         self.arm_node.close()
         self.master_node.close()
