@@ -4,13 +4,15 @@
 The session soak's figure: one fault of each kind, as the recorder kept it (teleop_soak.py).
 
 A panel per kind, its first fault, from 1 s before it to 3 s after it cleared: the master's
-wrist height (pose) and the arm's commanded height (servo_cp), each from where it was when the
-fault came (mm), and the master's torques (the norm of joint_states' effort, N*m, right axis);
-the fault's span shaded. Receive times of the bag, as the checker reads them.
+wrist height (from joint_states' angles, by the package's kinematics) and the arm's commanded
+height (servo_cp), each from where it was when the fault came (mm), and the master's torques
+(the norm of joint_states' effort, N*m, right axis); the fault's span shaded. Receive times of
+the bag, as the checker reads them.
 """
 import math
 
 from kraft_master_driver.bag.reader import read_topics
+from kraft_master_driver.core import kinematics
 import matplotlib
 
 matplotlib.use('Agg')
@@ -19,6 +21,7 @@ import numpy as np  # noqa: E402
 
 BEFORE_S, AFTER_S = 1.0, 3.0
 COLUMNS = 4
+EVERY = 5  # of the master's 1 kHz angles, one in this many through the kinematics
 
 
 def _window(data, field, start, end):
@@ -32,7 +35,7 @@ def _window(data, field, start, end):
 
 def draw(bag, faults, output):
     """Draw the first fault of each kind in `faults` (dicts) from `bag` into `output` (PNG)."""
-    data = read_topics(bag, ['/pose', '/servo_cp', '/joint_states'])
+    data = read_topics(bag, ['/servo_cp', '/joint_states'])
     first = {}
     for fault in faults:
         first.setdefault(fault['kind'], fault)
@@ -42,13 +45,17 @@ def draw(bag, faults, output):
     for ax, (kind, fault) in zip(axes.flat, sorted(first.items())):
         start, end = fault['start'], fault['end']
         span = (start - BEFORE_S, end + AFTER_S)
-        for topic, label, colour in (('/pose', 'master z', '#1f4e79'),
-                                     ('/servo_cp', 'arm command z', '#c0392b')):
-            window = _window(data.get(topic), 'position', *span)
-            if window is not None and len(window[0]):
-                times, position = window
-                ax.plot(times - start, 1e3 * (position[:, 2] - position[0, 2]), color=colour,
-                        linewidth=0.9, label=label)
+        window = _window(data.get('/joint_states'), 'position', *span)
+        if window is not None and len(window[0]):
+            times, angles = window[0][::EVERY], window[1][::EVERY]
+            height = np.array([kinematics.forward(theta)[2, 3] for theta in angles])
+            ax.plot(times - start, 1e3 * (height - height[0]), color='#1f4e79', linewidth=0.9,
+                    label='master z')
+        window = _window(data.get('/servo_cp'), 'position', *span)
+        if window is not None and len(window[0]):
+            times, position = window
+            ax.plot(times - start, 1e3 * (position[:, 2] - position[0, 2]), color='#c0392b',
+                    linewidth=0.9, label='arm command z')
         torque_axis = ax.twinx()
         window = _window(data.get('/joint_states'), 'effort', *span)
         if window is not None and len(window[0]):

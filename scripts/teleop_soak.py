@@ -98,7 +98,7 @@ def cell(figure):
 
 
 def table(figures):
-    """Return the faults by kind as a Markdown table (doc/safety.md)."""
+    """Return a Markdown table of the faults by kind (doc/safety.md)."""
     lines = ['| fault | side | n | longest (s) | to safe, max / p99 (ms) | '
              'to recovery, max / p99 (ms) | following again, max / p99 (ms) |',
              '|---|---|---|---|---|---|---|']
@@ -138,12 +138,14 @@ def main(argv=None):
                         help='directory of the bag, logs, faults and summary '
                              '(default build/teleop_soak/<time>)')
     parser.add_argument('--figure', type=pathlib.Path,
-                        help='plot one fault of each kind into this PNG (default: figure.png in --out)')
+                        help='plot one fault of each kind into this PNG '
+                             '(default: figure.png in --out)')
     args = parser.parse_args(argv)
     out = args.out or REPO / 'build' / 'teleop_soak' / time.strftime('%Y%m%d-%H%M%S')
     out.mkdir(parents=True, exist_ok=True)
     figure = args.figure or out / 'figure.png'
-    print(f'load average at the start: {[round(v, 2) for v in os.getloadavg()]}; writing to {out}')
+    load = [round(v, 2) for v in os.getloadavg()]
+    print(f'load average at the start: {load}; writing to {out}')
     soak = Soak(out, args.seed, args.duration, args.longest_fault)
     seconds = soak.run()
     faults_path = out / 'faults.jsonl'

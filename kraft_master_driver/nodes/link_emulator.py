@@ -72,9 +72,9 @@ for _direction in DIRECTIONS:
                                          read_only=False),
         f'{_direction}.blackout': Spec(False, 'Lose every message while true (a link that is '
                                        'down).', read_only=False),
-        f'{_direction}.stamp_offset': Spec(0.0, "Seconds added to the header stamp of each "
-                                           "message relayed (a skewed clock on the sending "
-                                           "side); types without a header pass unchanged.",
+        f'{_direction}.stamp_offset': Spec(0.0, 'Seconds added to the header stamp of each '
+                                           'message relayed (a skewed clock on the sending '
+                                           'side); types without a header pass unchanged.',
                                            low=-1e6, high=1e6, read_only=False),
     })
 
@@ -96,8 +96,8 @@ def shift_stamp(data, offset_ns):
     layout = STAMP[data[1] & 1]
     sec, nanosec = layout.unpack_from(data, STAMP_AT)
     shifted = bytearray(data)
-    layout.pack_into(shifted, STAMP_AT, *divmod(sec * 1_000_000_000 + nanosec + offset_ns,
-                                               1_000_000_000))
+    total = sec * 1_000_000_000 + nanosec + offset_ns
+    layout.pack_into(shifted, STAMP_AT, *divmod(total, 1_000_000_000))
     return bytes(shifted)
 
 

@@ -53,7 +53,7 @@ def device(fault):
 
 
 def bad_wrench(soak, duration, rng):
-    """A second source on the driver's wrench streams a wrench it must reject."""
+    """Stream, from a second source, a wrench the driver must reject."""
     wrench, frame_id, stamp = BAD_WRENCHES[rng.choice(sorted(BAD_WRENCHES))]
     start_ns, _ = soak.wrench_source().switch(SOURCE_RATE_HZ, wrench, frame_id, stamp)
     hold(soak, duration)
@@ -62,7 +62,7 @@ def bad_wrench(soak, duration, rng):
 
 
 def wrench_flood(soak, duration, _rng):
-    """A second source floods the driver with valid wrenches at 20 kHz."""
+    """Flood the driver with valid wrenches at 20 kHz from a second source."""
     start_ns, _ = soak.wrench_source().switch(FLOOD_RATE_HZ)
     hold(soak, duration)
     end_ns, _ = soak.wrench_source().switch(0.0)
@@ -70,16 +70,16 @@ def wrench_flood(soak, duration, _rng):
 
 
 def sensor(fault):
-    """Return the injection of a fault of the arm's wrist sensor (the arm's ft_fault)."""
+    """Return the injection of wrist sensor fault `fault` (the arm's ft_fault)."""
     def inject(soak, duration, _rng):
-        start = soak.operator.set('arm', ft_fault=fault)
+        start = soak.operator.set_parameters('arm', ft_fault=fault)
         hold(soak, duration)
-        return start, soak.operator.set('arm', ft_fault='none')
+        return start, soak.operator.set_parameters('arm', ft_fault='none')
     return inject
 
 
 def arm_stall(soak, duration, _rng):
-    """The arm's process stops (SIGSTOP) for `duration`: a stalled controller."""
+    """Stop the arm's process (SIGSTOP) for `duration`: a stalled controller."""
     arm = soak.site.children['arm']
     start = time.time()
     arm.pause(True)
@@ -91,13 +91,13 @@ def arm_stall(soak, duration, _rng):
 
 
 def restart_arm(soak, _duration, _rng):
-    """The arm's process is SIGKILLed and started again: over once it publishes its pose."""
+    """SIGKILL the arm's process and start it again: over once it publishes its pose."""
     start = soak.site.restart('arm', lambda killed: soak.operator.arm_stamp > killed)
     return start, time.time()
 
 
 def restart_bridge(soak, _duration, _rng):
-    """The bridge's process is SIGKILLed and started again: over once it says its state."""
+    """SIGKILL the bridge's process and start it again: over once it says its state."""
     soak.operator.state = ''
     start = soak.site.restart('bridge', lambda _killed: soak.operator.state)
     return start, time.time()
@@ -105,26 +105,26 @@ def restart_bridge(soak, _duration, _rng):
 
 def link(soak, duration, values, cleared):
     """Set the link emulator's parameters `values` for `duration`, then `cleared`."""
-    start = soak.operator.set('link', **values)
+    start = soak.operator.set_parameters('link', **values)
     hold(soak, duration)
-    return start, soak.operator.set('link', **cleared)
+    return start, soak.operator.set_parameters('link', **cleared)
 
 
 def blackout(soak, duration, _rng):
-    """Both directions of the link lose everything."""
+    """Lose everything in both directions of the link."""
     return link(soak, duration, {'to_slave__blackout': True, 'to_master__blackout': True},
                 {'to_slave__blackout': False, 'to_master__blackout': False})
 
 
 def delay_step(soak, duration, rng):
-    """Both directions' delay steps from 0 to up to 500 ms, and back."""
+    """Step both directions' delay from 0 to up to 500 ms, and back."""
     delay = rng.uniform(0.05, 0.5)
     return link(soak, duration, {'to_slave__delay': delay, 'to_master__delay': delay},
                 {'to_slave__delay': 0.0, 'to_master__delay': 0.0})
 
 
 def loss_burst(soak, duration, _rng):
-    """Both directions lose 30 % of the messages in runs of 50 on average."""
+    """Lose 30 % of the messages both ways, in runs of 50 on average."""
     lossy = {'loss': 0.3, 'loss_burst': 50.0}
     clear = {'loss': 0.0, 'loss_burst': 0.0}
     return link(soak, duration, {f'{d}__{k}': v for d in ('to_slave', 'to_master')
@@ -133,7 +133,7 @@ def loss_burst(soak, duration, _rng):
 
 
 def clock_skew(soak, duration, rng):
-    """One site's stamps run ahead or behind by 0.5 to 5 s (the arm's, or the master's)."""
+    """Move one site's stamps 0.5 to 5 s ahead or behind (the arm's, or the master's)."""
     direction = rng.choice(('to_slave', 'to_master'))
     skew = rng.choice((-1.0, 1.0)) * rng.uniform(0.5, 5.0)
     return link(soak, duration, {f'{direction}__stamp_offset': skew},

@@ -22,12 +22,12 @@ import sys
 import threading
 import time
 
+from geometry_msgs.msg import PoseStamped
 from harness import dds_shm, REPO
 from harness.demo import session_processes
 from harness.driver import ClientNode, next_domain_id, wait_for
 from kraft_master_driver.nodes.ros_io import take_newest
 from kraft_master_driver.tools.demo import HOME, MUJOCO_BRIDGE, MUJOCO_DRIVER, ros_parameters
-from geometry_msgs.msg import PoseStamped
 import rclpy
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
@@ -303,7 +303,7 @@ class Operator:
         """Press or release the clutch."""
         self.clutch_pub.publish(Bool(data=pressed))
 
-    def set(self, node, **values):
+    def set_parameters(self, node, **values):
         """Set parameters of 'arm' or 'link' (dots written as '__'); fail if one is refused."""
         client = self.parameters[node]
         assert client.wait_for_services(timeout_sec=START_S), f'no parameter service on {node}'
