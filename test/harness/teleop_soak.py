@@ -22,7 +22,8 @@ from harness.soak_site import Operator, Site, START_S
 import numpy as np
 
 RSS_PERIOD_S = 10.0
-WARM_UP_S = 60.0  # RSS samples before this are left out of the slopes (none in a shorter run)
+WARM_UP_S = 60.0  # a process's RSS samples in its first minute are left out of its slope
+MIN_SAMPLES = 10  # a slope of fewer samples (after the warm-up) is not given
 CLUTCH_EVERY_S = 30.0  # the operator clutches this often, between faults
 CLUTCH_S = 1.5
 ENABLE_EVERY_S = 0.5
@@ -169,9 +170,9 @@ class Soak:
         found = {}
         for (name, pid), samples in sorted(self.rss.items()):
             times, kib = np.array(samples, dtype=float).T
-            settled = times >= WARM_UP_S
+            settled = times >= times[0] + WARM_UP_S  # each incarnation from its own start
             slope = (float(np.polyfit(times[settled] / 60.0, kib[settled], 1)[0])
-                     if settled.sum() >= 3 else None)
+                     if settled.sum() >= MIN_SAMPLES else None)
             found.setdefault(name, []).append({
                 'pid': pid, 'samples': len(kib), 'first_kib': int(kib[0]),
                 'last_kib': int(kib[-1]), 'max_kib': int(kib.max()),
