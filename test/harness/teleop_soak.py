@@ -13,6 +13,7 @@ is checked with kraft_master_driver.tools.session_check.
 """
 import collections
 import json
+import signal
 import time
 
 from harness.driver import wait_for
@@ -29,6 +30,10 @@ CLUTCH_S = 1.5
 ENABLE_EVERY_S = 0.5
 RECOVERY_S = 60.0  # a fault the bridge does not follow again after, within this, is reported
 SETTLE_S = 1.0  # following again this long before the next fault may come
+
+
+def _interrupt(_signum, _frame):
+    raise KeyboardInterrupt
 
 
 class Soak:
@@ -113,6 +118,10 @@ class Soak:
             self.started = time.monotonic()
             self.site.wait_recording()
             self.operator = Operator(self.site)
+            # rclpy.init took SIGINT and SIGTERM for its contexts: Ctrl-C must end the run,
+            # through the `finally` that stops every process.
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(signum, _interrupt)
             assert self.follow(START_S) is not None, (
                 f'the bridge never followed: {self.operator.state!r}; see {self.work}')
             self.started = time.monotonic()
