@@ -26,7 +26,8 @@ ARM ?= mujoco
 # Keep DDS discovery on this machine for everything started from here.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 
-.PHONY: demo unit test test-random test-latest lock lint docs doc-figures bench soak venv clean
+.PHONY: demo unit test test-random test-latest lock lint docs doc-figures bench soak teleop-soak \
+	venv clean
 
 # Everything `make demo` and `make test` install, without running either.
 venv: $(DEVELOPMENT)
@@ -130,6 +131,15 @@ bench: $(DEVELOPMENT)
 soak: $(DEVELOPMENT)
 	PYTHONPATH=test $(VPY) scripts/soak.py \
 		--duration $(if $(filter command line,$(origin DURATION)),$(DURATION),3600)
+
+# The whole session under faults at both ends (driver, bridge, MuJoCo Panda, the link emulator
+# between them, all recorded), then the recorded invariants checked: half an hour unless
+# `make teleop-soak DURATION=600` says otherwise; SEED= draws another schedule. Writes into
+# build/teleop_soak/<time>/ the bag, the logs, faults.jsonl, summary.json and figure.png.
+teleop-soak: $(DEVELOPMENT)
+	$(VPY) scripts/teleop_soak.py \
+		--duration $(if $(filter command line,$(origin DURATION)),$(DURATION),1800) \
+		$(if $(SEED),--seed $(SEED))
 
 clean:
 	rm -rf $(VENV) .venv-latest build install log .pytest_cache .hypothesis *.egg-info

@@ -10,7 +10,8 @@ A one-way network link in software: delay, order-keeping jitter, loss and loss b
 Each message is delayed by `delay` plus a uniform draw in [0, jitter], never less than
 `delay`, and never released before the message admitted before it (the link keeps order, as
 one TCP-less path between two hosts does; jitter that would reorder is absorbed into a longer
-wait). Loss follows a two-state Gilbert chain: in the bad state every message is lost, in the
+wait). change() swaps the model mid-run (a delay step); `blackout` loses every message while
+set. Loss follows a two-state Gilbert chain: in the bad state every message is lost, in the
 good state none; its two transition probabilities come from the long-run loss rate and the mean
 length of a run of lost messages (loss_burst). loss_burst 0 means independent losses.
 
@@ -93,12 +94,27 @@ class DelayLine:
         self.rng = random.Random(seed)
         self.to_bad, self.to_good = self.model.transitions()
         self.bad = False
+        self.blackout = False  # every message lost while True
         self.last_due = -math.inf
         self.stats = DelayStatistics()
+
+    def change(self, model: LinkModel) -> None:
+        """
+        Apply `model` to the messages admitted from now on; raise ValueError if it is invalid.
+
+        Those already admitted keep their times, and order is still kept: after a shorter
+        delay a message leaves no sooner than the one admitted before it.
+        """
+        model = model.checked()
+        self.to_bad, self.to_good = model.transitions()
+        self.model = model
 
     def admit(self, now: float) -> float | None:
         """Take a message arriving at `now` (s); return its release time, or None if lost."""
         self.stats.received += 1
+        if self.blackout:
+            self.stats.dropped += 1
+            return None
         self.bad = (self.rng.random() >= self.to_good) if self.bad else (
             self.rng.random() < self.to_bad)
         if self.bad:

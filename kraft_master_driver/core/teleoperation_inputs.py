@@ -64,6 +64,7 @@ def tracking_error(measured: Pose, reference: Pose, settings: Settings) -> Optio
     return None
 
 
+BOX_TOLERANCE = 0.005  # m past the workspace box an arm may be and still be enabled
 Sample = Optional[tuple[object, float]]  # an input and its receipt time (s), None: none yet
 
 
@@ -80,7 +81,10 @@ def enable_refusal(settings: Settings, master: Sample, arm: Optional[tuple[Pose,
         return 'no fresh ' + ', '.join(missing) + ': not enabled'
     assert arm is not None
     position = arm[0].position
-    if np.any(position < box[0]) or np.any(position > box[1]):
+    # The target never leaves the box, but an arm held there after a FAULT may sit a little past
+    # it (its impedance lags the target): refused, teleoperation could never start again.
+    if (np.any(position < box[0] - BOX_TOLERANCE)
+            or np.any(position > box[1] + BOX_TOLERANCE)):
         return (f'the arm at {np.round(position, 4).tolist()} m is outside the workspace box: '
                 'not enabled')
     return None

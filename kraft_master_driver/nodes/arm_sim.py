@@ -10,7 +10,8 @@ that moves the target) in `arm_frame`, and publishes `measured_cp` (the tool's p
 expects them. The physics steps 1 ms at a time, paced to the wall clock, and its real-time
 factor is in the diagnostics. A command command_timeout old or older, or none, holds the arm
 still. The arm, its controller and its table are simulation.arms.panda.PandaArm (no ROS);
-this node only moves messages.
+this node only moves messages. For fault rehearsals, ft_fault (settable at run time) makes the
+wrist sensor drop out, read NaN, stick, spike or change its frame.
 """
 import math
 import sys
@@ -20,17 +21,22 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, Vector3Stamped, WrenchStamped
 from kraft_master_driver.nodes import cdr
 from kraft_master_driver.nodes.node_process import run_node
-from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
+from kraft_master_driver.nodes.parameters import (
+    declare_parameters, ParameterError, run_time_changes, Spec)
 from kraft_master_driver.nodes.ros_io import (
     GIL_SWITCH_INTERVAL_S, PacedThread, steady_timer, subscribe_raw, take_all)
 from kraft_master_driver.simulation.arms.panda import (
     ArmModelMissing, Gains, JOINT_NAMES, PandaArm, SensorModel, Table)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 MAX_CATCH_UP_STEPS = 20  # steps run at once after a late wake-up; time beyond is dropped
 TICK_QUEUE = 10
+# The wrist sensor's faults that ft_fault switches on, for fault rehearsals.
+FT_FAULTS = ('none', 'dropout', 'nan', 'stuck', 'spike', 'frame')
+SPIKE_N = 1e4  # N added along the sensor's z by a 'spike': ten times the bridge's input limit
 
 POSE_STAMPED = cdr.StampedDoublesDecoder('PoseStamped', 7)
 TWIST_STAMPED = cdr.StampedDoublesDecoder('TwistStamped', 6)
@@ -80,6 +86,11 @@ PARAMETERS = {
                         'axis (N).', low=0.0, high=100.0),
     'torque_noise': Spec(_SENSOR.torque_noise, 'Standard deviation of white noise on each '
                          'moment axis (N*m).', low=0.0, high=10.0),
+    'ft_fault': Spec('none', "A fault of the F/T sensor, for rehearsals: 'dropout' publishes "
+                     "no measured_cf, 'nan' NaN in every axis, 'stuck' the reading of the "
+                     "moment it was set, 'spike' 10 kN more along z, 'frame' the frame_id "
+                     "ft_frame + '_moved'; 'none' the true reading.", read_only=False,
+                     choices=FT_FAULTS),
 }
 
 
@@ -114,6 +125,10 @@ class ArmSimNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', reliable)
         self._pose_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 7)
         self._wrench_cdr = cdr.StampedDoublesEncoder(config['ft_frame'], 6)
+        self._moved_wrench_cdr = cdr.StampedDoublesEncoder(config['ft_frame'] + '_moved', 6)
+        self.ft_fault = config['ft_fault']
+        self._stuck_reading = None
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._joints_cdr = cdr.JointStateEncoder('', JOINT_NAMES, (7, 7, 7))
         self._table_cdr = cdr.StampedDoublesEncoder(self.arm_frame, 3)
         # Taken raw by the physics thread (nodes/ros_io.py), all that came at each step.
@@ -176,6 +191,34 @@ class ArmSimNode(Node):
             refusal = self.arm.command_twist(values[:3], values[3:], time.monotonic())
         return refusal
 
+    def _on_set_parameters(self, parameters):
+        """Take a run-time ft_fault; every other parameter is fixed at start-up."""
+        try:
+            changes = run_time_changes(PARAMETERS, parameters)
+        except ParameterError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        if 'ft_fault' in changes:
+            self._stuck_reading = None
+            self.ft_fault = changes['ft_fault']
+            self.get_logger().warning(f'F/T sensor fault: {self.ft_fault}')
+        return SetParametersResult(successful=True)
+
+    def _sensor_message(self, sec, nanosec):
+        """Return measured_cf as CDR bytes, with the ft_fault switched on; None: no message."""
+        fault, reading = self.ft_fault, self.arm.wrench()
+        if fault == 'dropout':
+            return None
+        if fault == 'nan':
+            reading[:] = math.nan
+        elif fault == 'stuck':
+            if self._stuck_reading is None:
+                self._stuck_reading = reading
+            reading = self._stuck_reading
+        elif fault == 'spike':
+            reading[2] += SPIKE_N
+        encoder = self._moved_wrench_cdr if fault == 'frame' else self._wrench_cdr
+        return encoder.encode(sec, nanosec, reading.tolist())
+
     # -- the physics thread ------------------------------------------------------------
 
     def _step(self, missed):
@@ -215,7 +258,9 @@ class ArmSimNode(Node):
         self._snapshot = (position, table_force, arm.holding)
         self.pose_pub.publish(self._pose_cdr.encode(
             sec, nanosec, [*position.tolist(), *arm.tool_quaternion()]))
-        self.wrench_pub.publish(self._wrench_cdr.encode(sec, nanosec, arm.wrench().tolist()))
+        sensor = self._sensor_message(sec, nanosec)
+        if sensor is not None:
+            self.wrench_pub.publish(sensor)
         self.joints_pub.publish(self._joints_cdr.encode(
             sec, nanosec, arm.joint_positions().tolist(), arm.joint_velocities().tolist(),
             arm.torque.tolist()))

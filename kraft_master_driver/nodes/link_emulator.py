@@ -16,12 +16,15 @@ publishers are reliable, depth 10 (a reliable publisher reaches reliable and bes
 subscribers alike).
 
 Both directions report counts and the delay they added (received to published) on
-`diagnostics` every second and in the log every 10 s and at exit.
+`diagnostics` every second and in the log every 10 s and at exit. A direction's delay, jitter,
+loss and loss_burst can be set at run time (a delay step), and so can its blackout (every
+message lost) and its stamp_offset (the stamps of its messages moved: a skewed clock).
 """
 import heapq
 import importlib
 import itertools
 import re
+import struct
 import sys
 import threading
 import time
@@ -30,8 +33,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core.delay_line import DelayLine, LinkModel
 from kraft_master_driver.nodes.node_process import run_node, try_shutdown
 from kraft_master_driver.nodes.parameters import (
-    declare_parameters, ParameterError, Spec)
+    declare_parameters, ParameterError, run_time_changes, Spec)
 from kraft_master_driver.nodes.ros_io import GIL_SWITCH_INTERVAL_S, steady_timer
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -41,6 +45,8 @@ DIRECTIONS = ('to_slave', 'to_master')
 TYPE_PATTERN = re.compile(r'^(\w+)/msg/(\w+)$')
 LOG_PERIOD_S = 10.0
 RECHECK_S = 0.1  # s: the release thread looks at `running` at least this often
+STAMP = {0: struct.Struct('>iI'), 1: struct.Struct('<iI')}  # by the CDR header's endianness
+STAMP_AT = 4  # a message that starts with a Header: its stamp follows the 4-byte CDR header
 
 PARAMETERS = {
     'slave_domain_id': Spec(-1, 'DDS domain of the slave side; -1: the domain of the master '
@@ -54,12 +60,22 @@ PARAMETERS = {
 }
 for _direction in DIRECTIONS:
     PARAMETERS.update({
-        f'{_direction}.delay': Spec(0.0, 'One-way delay (s) added to every message.'),
+        f'{_direction}.delay': Spec(0.0, 'One-way delay (s) added to every message.',
+                                    read_only=False),
         f'{_direction}.jitter': Spec(0.0, 'Extra delay (s) drawn uniformly in [0, jitter]; '
-                                     'order is kept, so a draw that would overtake waits.'),
-        f'{_direction}.loss': Spec(0.0, 'Long-run fraction of messages lost, in [0, 1).'),
+                                     'order is kept, so a draw that would overtake waits.',
+                                     read_only=False),
+        f'{_direction}.loss': Spec(0.0, 'Long-run fraction of messages lost, in [0, 1).',
+                                   read_only=False),
         f'{_direction}.loss_burst': Spec(0.0, 'Mean length of a run of lost messages (Gilbert '
-                                         'chain), >= 1; 0: independent losses.'),
+                                         'chain), >= 1; 0: independent losses.',
+                                         read_only=False),
+        f'{_direction}.blackout': Spec(False, 'Lose every message while true (a link that is '
+                                       'down).', read_only=False),
+        f'{_direction}.stamp_offset': Spec(0.0, 'Seconds added to the header stamp of each '
+                                           'message relayed (a skewed clock on the sending '
+                                           'side); types without a header pass unchanged.',
+                                           low=-1e6, high=1e6, read_only=False),
     })
 
 
@@ -73,6 +89,35 @@ def parse_relay(spec):
     if type_name is not None and not TYPE_PATTERN.match(type_name):
         raise ValueError(f'topics: relay "{spec}": message type must look like pkg/msg/Type')
     return parts[0], parts[1] if len(parts) > 1 else parts[0], type_name
+
+
+def shift_stamp(data, offset_ns):
+    """Return CDR bytes of a message that starts with a Header, its stamp moved by offset_ns."""
+    layout = STAMP[data[1] & 1]
+    sec, nanosec = layout.unpack_from(data, STAMP_AT)
+    shifted = bytearray(data)
+    total = sec * 1_000_000_000 + nanosec + offset_ns
+    layout.pack_into(shifted, STAMP_AT, *divmod(total, 1_000_000_000))
+    return bytes(shifted)
+
+
+class StampShift:
+    """The offset (ns) added to the stamps of one direction's messages; 0: none."""
+
+    def __init__(self, seconds=0.0):
+        """Shift by `seconds`."""
+        self.offset_ns = round(seconds * 1e9)
+
+    def wrap(self, send, msg_class):
+        """Return `send` preceded by the shift, if messages of `msg_class` have a header."""
+        fields = list(msg_class.get_fields_and_field_types())
+        if fields[:1] != ['header']:
+            return send
+
+        def shifted_send(data):
+            offset_ns = self.offset_ns
+            send(shift_stamp(data, offset_ns) if offset_ns else data)
+        return shifted_send
 
 
 def message_class(type_name):
@@ -164,9 +209,11 @@ class DelayedSender:
 class Relay:
     """One topic carried in one direction: a raw subscription and a publisher of bytes."""
 
-    def __init__(self, spec, source_node, destination_node, line, releaser, queue_depth):
+    def __init__(self, spec, source_node, destination_node, line, releaser, queue_depth,
+                 shift=None):
         """Parse `spec`; the subscription, `queue_depth` deep, starts once the type is known."""
         self.spec = spec
+        self.shift = StampShift() if shift is None else shift
         self.queue_depth = queue_depth
         self.source, self.destination, self.type_name = parse_relay(spec)
         self.source_node = source_node
@@ -196,7 +243,7 @@ class Relay:
                                                     reliability=ReliabilityPolicy.RELIABLE))
         sender = DelayedSender(self.line, self.releaser, self.publisher.publish)
         self.source_node.create_subscription(
-            msg_class, self.source, sender.send,
+            msg_class, self.source, self.shift.wrap(sender.send, msg_class),
             QoSProfile(depth=self.queue_depth, reliability=ReliabilityPolicy.BEST_EFFORT),
             raw=True)
 
@@ -246,12 +293,16 @@ class LinkEmulatorNode(Node):
         ends = {'to_slave': (self, slave_node), 'to_master': (slave_node, self)}
         self.lines = {d: DelayLine(models[d], seed=None if seed is None else seed + i)
                       for i, d in enumerate(DIRECTIONS)}
+        self.shifts = {d: StampShift(config[f'{d}.stamp_offset']) for d in DIRECTIONS}
+        for direction in DIRECTIONS:
+            self.lines[direction].blackout = config[f'{direction}.blackout']
         try:
             self.relays = {d: [Relay(spec, *ends[d], self.lines[d], self.releaser,
-                                     config['queue_depth'])
+                                     config['queue_depth'], self.shifts[d])
                                for spec in specs[d]] for d in DIRECTIONS}
         except ValueError as error:
             raise ParameterError(str(error)) from None
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.releaser.start()
         if self.slave_executor is not None:
             self.slave_thread = threading.Thread(
@@ -267,6 +318,35 @@ class LinkEmulatorNode(Node):
             f'relaying domain {self.master_domain} (master) <-> {slave_domain} (slave); '
             + '; '.join(f'{d}: {", ".join(config[f"{d}.topics"])} with {models[d]}'
                         for d in DIRECTIONS))
+
+    def _on_set_parameters(self, parameters):
+        """Apply a run-time set of a direction's link model, blackout or stamp offset."""
+        try:
+            changes = run_time_changes(PARAMETERS, parameters)
+            models = {}
+            for direction in DIRECTIONS:
+                fields = {field: changes[f'{direction}.{field}'] for field in LinkModel._fields
+                          if f'{direction}.{field}' in changes}
+                if fields:
+                    models[direction] = self.lines[direction].model._replace(**fields)
+                    try:
+                        models[direction].checked()
+                    except ValueError as error:
+                        raise ParameterError(f'parameter {direction}.{error}') from None
+        except ParameterError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        for direction, model in models.items():
+            self.lines[direction].change(model)
+        for direction in DIRECTIONS:
+            if f'{direction}.blackout' in changes:
+                self.lines[direction].blackout = changes[f'{direction}.blackout']
+            if f'{direction}.stamp_offset' in changes:
+                self.shifts[direction].offset_ns = round(
+                    changes[f'{direction}.stamp_offset'] * 1e9)
+        if changes:
+            self.get_logger().info('set ' + ', '.join(
+                f'{name} {value}' for name, value in changes.items()))
+        return SetParametersResult(successful=True)
 
     def _spin_slave_side(self):
         try:

@@ -13,6 +13,9 @@ session_bags: synthetic recorded sessions, the bags the report's tests read. joi
 vectors inside the limits. force_reflection: an enabled force reflection, its inputs, and the
 checks of zero torque and of a bad setting, for its tests and the wrench admission's.
 reaper: a command run under a subreaper, which tells the exit of all it started.
+teleop_soak: the session soak (scripts/teleop_soak.py), with soak_site (its processes and
+operator), soak_faults (the faults and their schedule), soak_master.py and soak_recorder.py
+(the simulated master with its fault switches, and the recorder of both sites, as processes).
 This module: where the repository is.
 """
 import pathlib

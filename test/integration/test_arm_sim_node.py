@@ -10,6 +10,8 @@ from harness.driver import DriverProcess, next_domain_id, RosClient, vector_para
 from kraft_master_driver.simulation.arms.panda import PandaArm, Table
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -251,6 +253,59 @@ def test_a_command_in_another_frame_is_refused_in_one_line(install_prefix):
         code, output = arm.interrupt(signal.SIGINT)
         assert code == 0, output
         assert "servo_cp refused: frame_id 'world'" in output
+    finally:
+        master.close()
+        arm.kill()
+
+
+def test_the_wrist_sensor_faults_switched_on_at_run_time(install_prefix):
+    domain_id = next_domain_id()
+    master = Master(domain_id)
+    arm = DriverProcess(install_prefix, domain_id, name='kraft_master_arm_sim')
+    try:
+        client = master.client
+        parameters = AsyncParameterClient(client.node, '/kraft_master_arm_sim')
+        assert parameters.wait_for_services(timeout_sec=120.0)
+        client.wait(lambda: len(master.measured_cf) > 5)
+
+        def switch(fault):
+            future = parameters.set_parameters([Parameter('ft_fault', value=fault)])
+            client.wait(future.done)
+            return future.result().results[0]
+
+        def readings_once_in_effect(fault, effect, count=5):
+            """Switch `fault` on; once a reading shows `effect`, return the next `count`."""
+            assert switch(fault).successful
+            client.wait(lambda: master.measured_cf and effect(master.measured_cf[-1]))
+            master.measured_cf.clear()
+            client.wait(lambda: len(master.measured_cf) >= count)
+            return list(master.measured_cf)
+        client.wait(lambda: len(master.measured_cf) > 5)
+        true = force(master.measured_cf[-1])
+        assert all(np.isnan(force(m)).all() for m in readings_once_in_effect(
+            'nan', lambda m: np.isnan(force(m)).all()))
+        assert all(force(m)[2] > true[2] + 0.9e4 for m in readings_once_in_effect(
+            'spike', lambda m: force(m)[2] > 1e3))
+        assert {m.header.frame_id for m in readings_once_in_effect(
+            'frame', lambda m: m.header.frame_id != 'ft_sensor')} == {'ft_sensor_moved'}
+        # Stuck: the same reading over and over, each message stamped anew.
+        stuck = readings_once_in_effect('stuck', lambda m: m.header.frame_id == 'ft_sensor', 20)
+        assert len({m.wrench.force.z for m in stuck}) == 1
+        assert len({(m.header.stamp.sec, m.header.stamp.nanosec) for m in stuck}) == 20
+        assert switch('dropout').successful
+        # Once no measured_cf came while 50 poses did, none comes while 50 more do.
+        for _ in range(2):
+            master.measured_cf.clear()
+            master.measured_cp.clear()
+            client.wait(lambda: len(master.measured_cp) > 50)
+        assert not master.measured_cf
+        back = readings_once_in_effect('none', lambda m: True)
+        assert np.allclose(force(back[-1]), true, atol=0.05)
+        refused = switch('smoke')
+        assert not refused.successful and 'not one of none, dropout' in refused.reason
+        code, output = arm.interrupt(signal.SIGINT)
+        assert code == 0, output
+        assert 'F/T sensor fault: nan' in output
     finally:
         master.close()
         arm.kill()

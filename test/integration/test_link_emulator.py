@@ -21,6 +21,7 @@ import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 
@@ -210,6 +211,46 @@ def test_node_loses_the_set_fraction_and_keeps_order_under_jitter(two_domains):
     received, relayed, dropped = counts(output, 'to_slave')
     assert 0.1 < dropped / received < 0.3
     assert len(poses.arrivals.records) < relayed <= received - dropped
+
+
+def set_parameters(side, node_name, **values):
+    """Set parameters of node `node_name` from `side`'s node; return the results."""
+    client = AsyncParameterClient(side.node, node_name)
+    assert client.wait_for_services(timeout_sec=60.0)
+    future = client.set_parameters([Parameter(name.replace('__', '.'), value=value)
+                                    for name, value in values.items()])
+    wait_for(future.done, timeout=60.0)
+    return future.result().results
+
+
+def test_blackout_delay_and_stamp_offset_are_set_at_run_time(two_domains):
+    emulator, master, slave = two_domains([])
+    poses = Stream(master, slave, PoseStamped, 'pose')
+    wrenches = Stream(slave, master, WrenchStamped, 'wrench')
+    poses.warm_up()
+    wrenches.warm_up()
+    name = '/kraft_master_link_emulator'
+    assert all(r.successful for r in set_parameters(master, name, to_slave__blackout=True))
+    poses.burst(50, period=0.002)
+    wrenches.finish()  # the other direction still relays
+    assert not poses.arrivals.records
+    # A delay step and a skewed clock on the slave's side, then the link is back.
+    assert all(r.successful for r in set_parameters(
+        master, name, to_slave__blackout=False, to_slave__delay=0.2,
+        to_master__stamp_offset=-30.0))
+    poses.burst(20, period=0.002)
+    poses.finish()
+    assert len(poses.arrivals.records) == 20
+    assert poses.arrivals.delays().min() > 0.2
+    wrenches.burst(20, period=0.002)
+    wrenches.finish()
+    # The stamp arrives 30 s older than the slave's clock made it.
+    assert wrenches.arrivals.delays()[-20:].min() > 30.0
+    refused = set_parameters(master, name, to_master__loss=1.0)
+    assert not refused[0].successful and 'to_master.loss must be in' in refused[0].reason
+    code, output = emulator.interrupt()
+    assert code == 0, output
+    assert counts(output, 'to_slave')[2] >= 50
 
 
 class EmulatorInProcess:

@@ -39,7 +39,7 @@ from kraft_master_driver.simulation.master.faults import FaultInjector
 from kraft_master_driver.simulation.master.model import (
     DEFAULT_DYNAMICS, DeviceModel, HAND_OFF, Workspace)
 from kraft_master_driver.simulation.master.operators import (
-    HoldOperator, make_operator, OPERATORS, PushOperator)
+    HoldOperator, make_operator, OPERATORS, PushOperator, TaskOperator)
 from kraft_master_driver.simulation.master.serving import ServingThread
 from kraft_master_driver.simulation.master.transport import make_transport
 import numpy as np
@@ -206,7 +206,7 @@ class SimulatedKraftMaster:
         self._transport.start()
         self._start_time = self._model_time = time.monotonic()
         self._electronics.restart_watchdog(self._start_time)
-        self._waits_for_host = isinstance(self._operator, PushOperator)
+        self._waits_for_host = isinstance(self._operator, (PushOperator, TaskOperator))
         self._thread = ServingThread(self._transport, self._wire_time, self._stats,
                                      on_data=self._receive, on_tick=self._advance)
         self._thread.start()

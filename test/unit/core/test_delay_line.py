@@ -93,3 +93,30 @@ def test_bad_models_raise_naming_the_field(model, fragment):
     with pytest.raises(ValueError, match=None) as raised:
         DelayLine(model)
     assert fragment in str(raised.value)
+
+
+def test_a_delay_step_applies_to_later_messages_and_keeps_order():
+    line = DelayLine(LinkModel(delay=0.5))
+    assert line.admit(0.0) == 0.5
+    line.change(LinkModel(delay=0.0))
+    # Admitted after the step, it may not overtake the one still in the line.
+    assert line.admit(0.1) == 0.5
+    assert line.admit(1.0) == 1.0
+    line.change(LinkModel(delay=0.2))
+    assert line.admit(2.0) == 2.2
+
+
+def test_a_bad_change_raises_and_leaves_the_model():
+    line = DelayLine(LinkModel(delay=0.1))
+    with pytest.raises(ValueError, match='loss must be in'):
+        line.change(LinkModel(loss=1.0))
+    assert line.model == LinkModel(delay=0.1)
+
+
+def test_a_blackout_loses_every_message_until_it_is_lifted():
+    line = DelayLine(LinkModel(delay=0.01))
+    line.blackout = True
+    assert [line.admit(float(i)) for i in range(5)] == [None] * 5
+    line.blackout = False
+    assert line.admit(10.0) == pytest.approx(10.01)
+    assert (line.stats.received, line.stats.dropped) == (6, 5)

@@ -104,6 +104,21 @@ def test_enable_needs_every_input_fresh_and_the_arm_in_the_box():
     assert without_ft.enable(1.0).refusal is None
 
 
+def test_an_arm_held_just_past_the_box_is_enabled_and_its_target_comes_inside():
+    # The soak found a FAULT held with the arm 0.5 mm past the box: refused, no enable ever
+    # succeeded again. Within BOX_TOLERANCE it is enabled, and the target, starting at the arm,
+    # comes into the box at the speed limit.
+    edge = ARM_HOME[0] + 0.003
+    just_past = Session(workspace_min=(edge, -1.0, -1.0), max_linear_speed=0.25)
+    assert just_past.bridge.enable(just_past.now).refusal is None
+    targets = [just_past.follow(just_past.master).position[0] for _ in range(60)]
+    assert targets[0] == pytest.approx(ARM_HOME[0])
+    assert np.diff(targets).max() <= 0.25 * DT + 1e-12
+    assert targets[-1] == pytest.approx(edge)
+    too_far = Session(workspace_min=(ARM_HOME[0] + 0.006, -1.0, -1.0))
+    assert 'outside the workspace box' in too_far.bridge.enable(too_far.now).refusal
+
+
 @pytest.mark.parametrize('master_start', [(0.0, 0.0, 0.0), (0.25, -0.3, 0.12),
                                           (-0.2, 0.4, -0.15)])
 def test_registration_at_enable_starts_the_target_at_the_arm_wherever_the_master_is(

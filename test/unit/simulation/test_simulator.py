@@ -20,7 +20,7 @@ from kraft_master_driver.link.protocol import (
     STATUS_COMMAND_CLAMPED, STATUS_COMMAND_TIMEOUT, STATUS_CORRUPT_COMMAND)
 from kraft_master_driver.simulation.master.model import (
     actuators_to_joints, joints_to_actuators, Workspace)
-from kraft_master_driver.simulation.master.operators import PushOperator
+from kraft_master_driver.simulation.master.operators import PushOperator, TaskOperator
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import numpy as np
 import pytest
@@ -657,6 +657,31 @@ def test_push_operator_moves_the_wrist_straight_down_and_back():
     np.testing.assert_allclose(bottom - top, (0.0, 0.0, -PushOperator.DEPTH), atol=0.005)
     np.testing.assert_allclose(back, top, atol=1e-9)
     assert wrist(1.0)[2] == pytest.approx(top[2] - PushOperator.DEPTH / 2, abs=0.005)
+
+
+def test_task_operator_moves_holds_touches_down_and_lifts_round_after_round():
+    workspace = Workspace()
+    operator = TaskOperator(workspace, period=2.0, rng=np.random.default_rng(5))
+
+    def wrist(t):
+        return kinematics.forward(actuators_to_joints(np.array(operator.target(t))))[:3, 3]
+    home = kinematics.forward(workspace.home())[:3, 3]
+    ends = np.cumsum([share * 2.0 for _, share in TaskOperator.PHASES])
+    points = []
+    for round_start in (0.0, ends[-1], 2 * ends[-1]):  # its time only goes forward
+        moved, held, pressed, lifted = (wrist(round_start + ends[i]) for i in (0, 1, 3, 4))
+        sideways = moved - home
+        assert abs(sideways[2]) < 0.002 and np.abs(sideways[:2]).max() <= 0.031
+        np.testing.assert_allclose(held, moved, atol=1e-9)
+        np.testing.assert_allclose(pressed - moved, (0.0, 0.0, -TaskOperator.DEPTH), atol=0.005)
+        np.testing.assert_allclose(lifted, moved, atol=1e-6)
+        points.append(moved)
+    # Each round goes somewhere else, and the path is continuous across the rounds.
+    assert min(np.linalg.norm(a - b) for a, b in zip(points, points[1:])) > 1e-3
+    operator = TaskOperator(workspace, period=2.0, rng=np.random.default_rng(5))
+    times = np.arange(0.0, 3 * ends[-1], 0.001)
+    steps = np.linalg.norm(np.diff([wrist(t) for t in times], axis=0), axis=1)
+    assert steps.max() < 2e-4
 
 
 @pytest.mark.slow
