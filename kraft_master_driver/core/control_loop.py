@@ -268,6 +268,7 @@ class ControlLoop:
                 if not self._running or not self.keep_running():
                     break
                 sent = device.send(ZERO_TORQUES)
+                self.force.interrupt()
                 statistics.internal_errors += 1
                 self.log.error(f'cycle failed, torques zeroed: {error!r}',
                                throttle_duration_sec=1.0)
@@ -284,6 +285,7 @@ class ControlLoop:
         model = self.model
         now_ns = self.clock.monotonic_ns()
         if estimate is None:
+            self.force.interrupt()
             self.master_port.idle(now_ns)
             if model is not None:
                 model.idle()

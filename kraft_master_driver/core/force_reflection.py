@@ -11,6 +11,8 @@ path takes no lock.
 
 Zero torque is the answer to every doubt: force output disabled, no wrench yet, a stale or
 rejected wrench, or a non-finite result all give exactly zero torques, with a state saying why.
+Force that comes back after such a zero, a cycle without a reply or a gap in the cycles is
+ramped in over force_ramp_time, so the hand is not kicked.
 """
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -35,6 +37,9 @@ STATES = (DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE)
 
 DRIVEN_AXES = kinematics.DRIVEN_JOINTS
 MAX_WRENCH_TIMEOUT = 5.0
+MAX_FORCE_RAMP_TIME = 1.0
+# A late cycle advances the ramp by at most this share of it.
+RAMP_STEP_LIMIT = 0.1
 DEFAULT_TORQUE_LIMITS = (2.0,) * DRIVEN_AXES
 
 # A matrix as an array or as a sequence of rows (the loop's plain floats), a vector likewise.
@@ -89,6 +94,7 @@ class Settings(NamedTuple):
     centre_stiffness: tuple[float, ...] = (0.0, 0.0)
     centre_damping: tuple[float, ...] = (0.0, 0.0)
     contact_damping: float = 0.0
+    force_ramp_time: float = 0.0
 
 
 class _HotPath(NamedTuple):
@@ -98,6 +104,7 @@ class _HotPath(NamedTuple):
     timeout_ns: int
     stiffness: tuple[float, ...] | None  # six gains (linear x3, angular x3), None if all zero
     damping: tuple[float, ...] | None
+    ramp_ns: int
 
 
 _ZERO_OUTPUTS = {
@@ -115,6 +122,7 @@ _VALIDATORS: dict[str, Callable[[Any], object]] = {
     'centre_stiffness': partial(finite_reals, 'centre_stiffness', length=2),
     'centre_damping': partial(finite_reals, 'centre_damping', length=2),
     'contact_damping': partial(finite_real, 'contact_damping'),
+    'force_ramp_time': partial(finite_real, 'force_ramp_time', upper=MAX_FORCE_RAMP_TIME),
 }
 
 
@@ -125,7 +133,8 @@ def _six_gains(linear_angular: tuple[float, ...]) -> tuple[float, ...] | None:
 
 def _hot_path(settings: Settings) -> _HotPath:
     return _HotPath(settings, round(settings.wrench_timeout * 1e9),
-                    _six_gains(settings.centre_stiffness), _six_gains(settings.centre_damping))
+                    _six_gains(settings.centre_stiffness), _six_gains(settings.centre_damping),
+                    round(settings.force_ramp_time * 1e9))
 
 
 def _setting(name: str) -> property:
@@ -140,7 +149,8 @@ class ForceReflection:
     Torques are J^T (force_scale * F + W_centre - contact_damping |F| v) with F in {0} at the
     wrist origin (after the passivity port, if any) and v the wrist's linear velocity, th6 dropped
     (no motor), mapped to the actuator form (elbow motor drives th2 + th3) when coupling is
-    'actuator', then scaled down as a whole vector if any axis exceeds its torque limit.
+    'actuator', then scaled down as a whole vector if any axis exceeds its torque limit, and
+    ramped in after an interruption.
 
     hold(), clear() and configure() may be called from any thread; compute() from one thread
     only (it keeps the watchdog and saturation state).
@@ -153,20 +163,23 @@ class ForceReflection:
     centre_stiffness = _setting('centre_stiffness')
     centre_damping = _setting('centre_damping')
     contact_damping = _setting('contact_damping')
+    force_ramp_time = _setting('force_ramp_time')
 
     def __init__(self, force_scale: float = 1.0,
                  torque_limits: Sequence[float] = DEFAULT_TORQUE_LIMITS,
                  coupling: str = 'actuator', wrench_timeout: float = 0.05,
                  centre_stiffness: Sequence[float] = (0.0, 0.0),
                  centre_damping: Sequence[float] = (0.0, 0.0), contact_damping: float = 0.0,
-                 enabled: bool = False) -> None:
+                 enabled: bool = False, force_ramp_time: float = 0.0) -> None:
         """
         Validate the settings (ValueError naming the bad one); force output starts disabled.
 
         force_scale (1), torque_limits (5 values, N*m, actuator axes 1..5, > 0),
         coupling 'actuator' or 'joint', wrench_timeout (s, in (0, 5]),
         centre_stiffness (N/m, N*m/rad), centre_damping (N*s/m, N*m*s/rad), contact_damping
-        (s/m: N*s/m of linear damping per N of the force reflected, >= 0).
+        (s/m: N*s/m of linear damping per N of the force reflected, >= 0), force_ramp_time
+        (s, in [0, 1]: the force comes back from zero over this time after an interruption;
+        0: at once).
         """
         self._write_lock = threading.Lock()
         self._hot = _hot_path(Settings())
@@ -175,6 +188,11 @@ class ForceReflection:
         self._cleared = False  # clear() took the wrench away: nothing, not even the weight
         self._expired: WrenchInput | None = None
         self._was_saturated = False
+        # The share of the force given (0..1): zero after an interruption, then ramped up
+        # as the time ramped (ns) grows to force_ramp_time.
+        self._ramp = 0.0
+        self._ramped_ns = 0
+        self._last_cycle_ns: int | None = None
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
         self._watchdog_trips = 0
         self._age_expiries = 0
@@ -184,7 +202,8 @@ class ForceReflection:
         self.configure(
             enabled=enabled, force_scale=force_scale, torque_limits=torque_limits,
             coupling=coupling, wrench_timeout=wrench_timeout, centre_stiffness=centre_stiffness,
-            centre_damping=centre_damping, contact_damping=contact_damping)
+            centre_damping=centre_damping, contact_damping=contact_damping,
+            force_ramp_time=force_ramp_time)
 
     @property
     def settings(self) -> Settings:
@@ -227,6 +246,10 @@ class ForceReflection:
         """Forget the wrench: torques are zero (state 'no_wrench') until the next hold()."""
         self._latest = None
         self._cleared = True
+
+    def interrupt(self) -> None:
+        """Note that zero torque went out without compute() (no reply): the force ramps in."""
+        self._ramped_ns = 0
 
     @property
     def counters(self) -> dict[str, int]:
@@ -277,7 +300,9 @@ class ForceReflection:
         """
         hot = self._hot
         settings = hot.settings
+        self._step_ramp(now_ns)
         if not settings.enabled:
+            self._ramped_ns = 0
             return self._idle(DISABLED, port, now_ns)
         share = 0.0 if model is None else model[1]
         state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, share)
@@ -296,6 +321,7 @@ class ForceReflection:
             # The arm's weight alone only before any wrench: stale, refused or several sources
             # refused (cleared) give zero, the weight included.
             if holding is None or state != NO_WRENCH or self._cleared:
+                self._ramped_ns = 0
                 return _ZERO_OUTPUTS[state]
             # The port has nothing of this to book (the wrench's path idled it).
             return self._limited([0.0] * DRIVEN_AXES, holding, actuator_form, state, None, 0.0,
@@ -316,15 +342,30 @@ class ForceReflection:
             torques[1] -= torques[2]  # kinematics.actuator_torques, inlined
         return self._limited(torques, holding, actuator_form, ACTIVE, tag, share, port, now_ns)
 
+    def _step_ramp(self, now_ns: int) -> None:
+        """
+        Advance the ramp by the time since the last cycle, at most RAMP_STEP_LIMIT of it.
+
+        A gap longer than wrench_timeout since the last cycle (the device's own watchdog may
+        have zeroed its torques meanwhile) starts it again from zero.
+        """
+        hot = self._hot
+        last, self._last_cycle_ns = self._last_cycle_ns, now_ns
+        if last is None or now_ns - last > hot.timeout_ns:
+            self._ramped_ns = 0
+        elif self._ramped_ns < hot.ramp_ns:
+            self._ramped_ns += min(max(now_ns - last, 0), round(RAMP_STEP_LIMIT * hot.ramp_ns))
+        self._ramp = min(1.0, self._ramped_ns / hot.ramp_ns) if hot.ramp_ns else 1.0
+
     def _limited(self, torques: list[float], holding: Sequence[float] | None,
                  actuator_form: bool, state: str, tag: object, share: float,
                  port: Port | None, now_ns: int) -> TorqueOutput:
         """
-        Add the holding torques, refuse non-finite ones, keep inside the torque limits.
+        Add the holding torques, refuse non-finite ones, keep inside the torque limits, ramp.
 
         The reflected torques are scaled down as one vector (keeping the force's direction) so
         that, with the arm's weight added, no axis passes its limit; the weight itself is only
-        clamped, each axis on its own.
+        clamped, each axis on its own. The sum is scaled by the ramp's share.
         """
         limits = self._hot.settings.torque_limits
         weight, clamped = (0.0,) * DRIVEN_AXES, False
@@ -338,6 +379,7 @@ class ForceReflection:
             self._non_finite_results += 1
             if port is not None:
                 port.scaled(0.0)  # nothing reflected after all
+            self._ramped_ns = 0
             return self._idle(REJECTED, port, now_ns)
         # The largest share of the reflected torques that each axis's headroom allows.
         factor = min([1.0] + [(limit - math.copysign(w, tau)) / abs(tau)
@@ -345,14 +387,15 @@ class ForceReflection:
                               if abs(tau + w) > limit])
         saturated = factor < 1.0 or clamped
         if saturated:
-            if port is not None and factor < 1.0:
-                port.scaled(factor)
             self._saturated_cycles += 1
             if not self._was_saturated:
                 self._saturation_events += 1
         self._was_saturated = saturated
+        ramp = self._ramp
+        if port is not None and factor * ramp < 1.0:
+            port.scaled(factor * ramp)
         # The clamp only trims rounding.
-        torques = [min(max(tau * factor + w, -limit), limit)
+        torques = [min(max(tau * factor + w, -limit), limit) * ramp
                    for tau, w, limit in zip(torques, weight, limits)]
         t1, t2, t3, t4, t5 = torques
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.

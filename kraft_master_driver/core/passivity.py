@@ -192,10 +192,16 @@ class SlavePort(PortEnergy):
     `command`, the position a slave's servo should track. drift = target - command.
     """
 
-    def __init__(self, drift_gain: float = 2.0) -> None:
-        """drift_gain (1/s): rate at which drift is given back when energy allows."""
+    def __init__(self, drift_gain: float = 2.0, max_speed: float = math.inf) -> None:
+        """
+        drift_gain (1/s): rate at which drift is given back when energy allows.
+
+        max_speed (m/s): the giving back never makes the command move faster than this (nor
+        faster than the channel's own motion, where that is faster).
+        """
         super().__init__()
         self.drift_gain = float(drift_gain)
+        self.max_speed = float(max_speed)
         self.command: list[float] | None = None
         self._target: list[float] | None = None
 
@@ -231,13 +237,23 @@ class SlavePort(PortEnergy):
         # step's motion leaves, not the one before it (that would lead the target by a step).
         drift = [t - c - v * dt for t, c, v in zip(self._target, self.command, velocity)]
         if any(abs(d) > 1e-12 for d in drift):
-            back = [v + self.drift_gain * d for v, d in zip(velocity, drift)]
+            gain = self._drift_gain_within_speed(velocity, drift)
+            back = [v + gain * d for v, d in zip(velocity, drift)]
             back_power = -_dot(force, back)
             if self._excess(back_power, dt) == 0.0:
                 velocity, power_out = back, back_power
         self._account(power_out, dt, dissipated)
         self.command = [c + v * dt for c, v in zip(self.command, velocity)]
         return self.command
+
+    def _drift_gain_within_speed(self, velocity: Sequence[float],
+                                 drift: Sequence[float]) -> float:
+        """Return the largest gain <= drift_gain with |velocity + gain drift| in max_speed."""
+        limit = max(self.max_speed, math.sqrt(_dot(velocity, velocity)))
+        dd, vd, vv = _dot(drift, drift), _dot(velocity, drift), _dot(velocity, velocity)
+        # The root >= 0 of |v + g d|^2 = limit^2; vv <= limit^2 makes it real.
+        root = (-vd + math.sqrt(max(vd * vd - dd * (vv - limit * limit), 0.0))) / dd
+        return min(self.drift_gain, root)
 
     def _passive(self, velocity: list[float], force: Sequence[float],
                  dt: float) -> tuple[list[float], float, float]:

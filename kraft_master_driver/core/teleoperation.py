@@ -104,7 +104,7 @@ class Teleoperation:
         self.settings = settings
         checked_settings = checked(settings)
         self.base_rotation = checked_settings.base_rotation
-        self.port = SlavePort(settings.drift_gain)
+        self.port = SlavePort(settings.drift_gain, settings.max_linear_speed)
         self.port.enabled = settings.passivity
         self.motion = Motion(settings, checked_settings.box, self.port)
         self.force = RampedForce(settings, checked_settings.sensor_rotation)
@@ -229,6 +229,7 @@ class Teleoperation:
         self.settings = self.motion.settings = self.contact.settings = settings
         self.motion.box = checked_settings.box
         self.port.drift_gain = settings.drift_gain
+        self.port.max_speed = settings.max_linear_speed
         self.port.enabled = settings.passivity
         if held is not None and REGISTERING & changes:
             if self.following:

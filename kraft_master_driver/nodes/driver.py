@@ -43,7 +43,7 @@ DIAGNOSTIC_LEVELS = {driver_diagnostics.OK: DiagnosticStatus.OK,
 # Parameters settable at run time that the force reflection and the wrench admission take as
 # they are.
 FORCE_SETTINGS = ('force_scale', 'wrench_timeout', 'torque_limits', 'centre_stiffness',
-                  'centre_damping', 'contact_damping')
+                  'centre_damping', 'contact_damping', 'force_ramp_time')
 ADMISSION_SETTINGS = ('max_force', 'max_moment', 'max_wrench_age', 'max_stamp_skew')
 
 
@@ -64,7 +64,8 @@ class KraftMasterNode(Node):
             wrench_timeout=self.config['wrench_timeout'],
             centre_stiffness=tuple(self.config['centre_stiffness']),
             centre_damping=tuple(self.config['centre_damping']),
-            contact_damping=self.config['contact_damping'])
+            contact_damping=self.config['contact_damping'],
+            force_ramp_time=self.config['force_ramp_time'])
         self.force.enabled = self.config['force_enabled_at_start']
         self.master_port = MasterPort(self.config['passivity_damping'])
         self.master_port.enabled = self.config['passivity']

@@ -88,6 +88,10 @@ PARAMETERS = {
                             'reflected (N*s/m per N, i.e. s/m): none in free space; it keeps a '
                             'stiff contact reflected through a lagging arm still.',
                             read_only=False, low=0.0, high=100.0),
+    'force_ramp_time': Spec(0.05, 'After torques were zeroed (force disabled, a stale or '
+                            'refused wrench, no reply from the device, a gap in the cycles), '
+                            'the force comes back from zero over this time (s); 0: at once.',
+                            read_only=False, low=0.0, high=1.0),
     'gravity_compensation': Spec(False, 'Add the motor torques that hold the arm up against '
                                  'its weight (from gravity_parameters) while force output is '
                                  'enabled: alone before any wrench, with a live one; zero when '

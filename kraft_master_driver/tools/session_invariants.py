@@ -157,15 +157,16 @@ def holds(periods: list[Period], command: Series, twist: bool, limits: Limits
     """
     Check that the arm holds while the bridge says it must, until the operator enables.
 
-    In FAULT every command (after state_grace) is the same position, or a zero twist; in
-    DISABLED nothing is sent. The first offending message of each period is named.
+    In FAULT every command (from state_grace after its start to state_grace before its end)
+    is the same position, or a zero twist; in DISABLED nothing is sent. The first offending
+    message of each period is named.
     """
     found = []
     for period in periods:
         if period.state not in ('FAULT', 'DISABLED'):
             continue
         rows = np.flatnonzero((command.t >= period.start + limits.state_grace) &
-                              (command.t < period.end))
+                              (command.t < period.end - limits.state_grace))
         if not rows.size:
             continue
         why = f'{period.state}' + (f' ({period.reason})' if period.reason else '')
@@ -187,14 +188,20 @@ def holds(periods: list[Period], command: Series, twist: bool, limits: Limits
 
 
 def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Violation]:
-    """Check that the master's torque is zero from torque_zero_within after each such fault."""
+    """
+    Check that the master's torque is zero from torque_zero_within after each such fault.
+
+    Up to its end less state_grace: the message that ends a fault (an ENABLED, say) and the
+    first torque after it may be received in either order.
+    """
     found = []
     size = np.max(np.abs(np.nan_to_num(effort.values, nan=np.inf)), axis=1, initial=0.0)
     for fault in faults:
         if not fault.force_untrue:
             continue
         start = fault.start + limits.torque_zero_within
-        rows = np.flatnonzero((effort.t >= start) & (effort.t <= fault.end) &
+        rows = np.flatnonzero((effort.t >= start) &
+                              (effort.t <= fault.end - limits.state_grace) &
                               (size > limits.torque_zero))
         found += _first(effort, rows, lambda row: (
             f'torque {size[row]:.4f} N*m {effort.t[row] - fault.start:.3f} s after '
@@ -204,13 +211,22 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Vio
 
 
 def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Violation]:
-    """Check that the torque rises by at most max_torque_step a message as force comes back."""
+    """
+    Check that the torque rises by at most max_torque_step a message as force comes back.
+
+    After a fault that makes the force untrue or one on the master's or the clock's side (the
+    driver zeroes the torque for them); not after a stuck sensor, a loss burst or a delay
+    step: the force that comes through them is the arm's, and a step in it is the arm's
+    contact changing, as at a touch.
+    """
     found = []
     values = effort.values
     steps = np.max(np.abs(np.diff(values, axis=0)), axis=1, initial=0.0)
     size = np.max(np.abs(values), axis=1, initial=0.0)
     rising = size[1:] > size[:-1]
     for fault in faults:
+        if not (fault.force_untrue or fault.side in ('master', 'clock')):
+            continue
         rows = np.flatnonzero((effort.t[1:] >= fault.end) &
                               (effort.t[1:] <= fault.end + limits.recovery_window) &
                               rising & (steps > limits.max_torque_step))

@@ -5,12 +5,12 @@ The session soak's faults: their kinds, a schedule drawn from a seed, and their 
 
 Each kind has a side (the checker's: master, arm, link or clock), a range of durations and a
 function that injects it on a soak_site.Site and returns (start, end) in time.time() seconds,
-the clock the recorder stamps messages with: start when the fault took effect, end when it was
-cleared (for a kill and restart, when the new process was started). `force_untrue`: whether the
-force the master feels is no longer the arm's while it lasts (the wrist sensor's faults, a
-stalled or dead arm, a link down). Not counted as untrue: a stuck sensor reading, which looks
-like a true one and nothing on the path can tell apart (doc/safety.md says so), and a loss
-burst, through which the messages that come are true.
+the clock the recorder stamps messages with: start when the fault had surely taken effect,
+end when it was cleared at the earliest (for a kill and restart, when the new process was
+started). `force_untrue`: whether the force the master feels is no longer the arm's while it
+lasts (the wrist sensor's faults, a stalled or dead arm, a link down). Not counted as untrue:
+a stuck sensor reading, which looks like a true one and nothing on the path can tell apart
+(doc/safety.md says so), and a loss burst, through which the messages that come are true.
 """
 import math
 import random
@@ -74,7 +74,9 @@ def sensor(fault):
     def inject(soak, duration, _rng):
         start = soak.operator.set_parameters('arm', ft_fault=fault)
         hold(soak, duration)
-        return start, soak.operator.set_parameters('arm', ft_fault='none')
+        end = time.time()  # cleared between here and the answer: the earliest end
+        soak.operator.set_parameters('arm', ft_fault='none')
+        return start, end
     return inject
 
 
@@ -107,7 +109,9 @@ def link(soak, duration, values, cleared):
     """Set the link emulator's parameters `values` for `duration`, then `cleared`."""
     start = soak.operator.set_parameters('link', **values)
     hold(soak, duration)
-    return start, soak.operator.set_parameters('link', **cleared)
+    end = time.time()  # cleared between here and the answer: the earliest end
+    soak.operator.set_parameters('link', **cleared)
+    return start, end
 
 
 def blackout(soak, duration, _rng):

@@ -180,7 +180,8 @@ def test_servo_cf_gives_the_torques_j_transpose_f(crtk, frame_id):
         # state of a hand that has come to rest under the wrench.
         previous, state = list(client.joint_states)[-2:]
         still = np.abs(np.subtract(state.position, previous.position)).max() < 1e-5
-        return any(state.effort) and still and stamp_ns(state) > after_ns and state
+        ramped_in = np.allclose(state.effort, previous.effort, atol=1e-5)
+        return any(state.effort) and still and ramped_in and stamp_ns(state) > after_ns and state
     state = crtk.stream_until(newest_with_torque, frame_id=frame_id)
     force, moment = np.array(WRENCH[:3]), np.array(WRENCH[3:])
     if frame_id == WRIST:

@@ -56,6 +56,15 @@ def stream_until_torque(client, frame_id=BASE):
     client.stream_wrench_until(WRENCH, frame_id, lambda: any(client.joint_states[-1].effort))
 
 
+def stream_until_settled_torque(client, frame_id=BASE):
+    """Publish WRENCH until two states in a row carry the same torque: ramped in (0.05 s)."""
+    def settled():
+        previous, state = list(client.joint_states)[-2:]
+        return any(state.effort) and np.allclose(state.effort, previous.effort, atol=1e-5)
+    client.stream_wrench_until(WRENCH, frame_id, lambda: len(client.joint_states) > 1 and
+                               settled())
+
+
 @pytest.mark.parametrize('rate_hz', [100.0, 250.0])
 def test_joint_states_arrive_at_the_configured_rate(install_prefix, rate_hz):
     """A Python test client cannot follow 1 kHz; benchmarks/loop.py measures that rate."""
@@ -118,7 +127,7 @@ def latest_with_torque(client):
 
 def test_wrench_gives_effort_j_transpose_f_and_device_counts(session):
     client = session.client
-    stream_until_torque(client)
+    stream_until_settled_torque(client)
     state = latest_with_torque(client)
     effort = np.array(state.effort)
     np.testing.assert_allclose(effort, expected_effort(state.position, WRENCH), atol=2e-3)
@@ -138,7 +147,7 @@ def test_torque_signs_of_a_calibration_file_negate_those_axes_on_the_wire(instal
     running = DriverSession(install_prefix, [('force_enabled_at_start', 'true')],
                             params_file=params)
     try:
-        stream_until_torque(running.client)
+        stream_until_settled_torque(running.client)
         state = latest_with_torque(running.client)
         # The driver's torques keep the Jacobian's sense; the device gets them signed.
         effort = np.array(state.effort)
@@ -155,7 +164,7 @@ def test_torque_signs_of_a_calibration_file_negate_those_axes_on_the_wire(instal
 
 def test_wrist_frame_wrench_is_rotated_into_the_base_frame(session):
     client = session.client
-    stream_until_torque(client, frame_id=WRIST)
+    stream_until_settled_torque(client, frame_id=WRIST)
     state = latest_with_torque(client)
     rotation = kinematics.forward(state.position)[:3, :3]
     base_wrench = np.concatenate([rotation @ WRENCH[:3], rotation @ WRENCH[3:]])

@@ -221,6 +221,17 @@ def test_a_missing_reply_zeroes_the_torques_and_says_so():
     assert loop.log.messages('info') == ['the device answers again']
 
 
+def test_after_a_missing_reply_the_force_ramps_back_in():
+    force = ForceReflection(enabled=True, force_ramp_time=20 * PERIOD_NS / 1e9)
+    _, device, _ = run_script([reply()] * 25 + [TIMEOUT] + [reply()] * 5, force=force)
+    shares = [sent[0] / MOMENT_Z for _, sent in device.sent]
+    # Ramped in from the first estimate (1/20 a cycle), zero at the missing reply, ramped again:
+    # that cycle waited reply_timeout, so the first step is the most a cycle takes, a tenth.
+    expected = [0.0, 0.0] + [min(n / 20, 1.0) for n in range(1, 25)] + [0.0] + [
+        n / 20 for n in range(2, 7)]
+    assert shares == pytest.approx(expected, abs=1e-12)
+
+
 def test_a_down_link_is_reported_less_often_as_reopens_keep_failing():
     clock = FakeClock()
     device = ScriptedDevice(clock, [])

@@ -319,6 +319,7 @@ def test_contact_damping_grows_with_the_force_and_takes_only_energy(seed):
     ('centre_stiffness', (1.0,)), ('centre_stiffness', (-1.0, 0.0)),
     ('centre_damping', (nan, 0.0)), ('centre_damping', (0.0, 0.0, 0.0)),
     ('contact_damping', -1.0), ('contact_damping', inf),
+    ('force_ramp_time', -0.01), ('force_ramp_time', 1.5), ('force_ramp_time', nan),
     ('enabled', 'yes'), ('enabled', 1),
 ])
 def test_bad_settings_raise_naming_the_setting_and_change_nothing(name, value):
@@ -445,3 +446,105 @@ def test_holding_torques_take_the_joint_form_and_non_finite_ones_are_refused():
     assert joint_device.actuator == pytest.approx((h1, h2 + h3, h3, h4, h5))
     nan = reflection().compute(rotation, jac, T0, holding=(math.nan, 0, 0, 0, 0))
     assert_zero(nan, 'rejected')
+
+
+MS = 1_000_000
+
+
+class ScaledPort:
+    """A master port that passes the wrench on and keeps the shares it is told were applied."""
+
+    def __init__(self):
+        self.shares = []
+
+    def step(self, force, velocity, now_ns):
+        return force
+
+    def damped(self, velocity):
+        return [0.0] * 6
+
+    def scaled(self, factor):
+        self.shares.append(factor)
+
+    def idle(self, now_ns):
+        pass
+
+
+def ramped_run(fr, rotation, jac, start_ns, cycles, period_ns=MS, **kwargs):
+    """Hold a fresh wrench before each of `cycles` computes, period_ns apart; return them."""
+    outputs = []
+    for cycle in range(cycles):
+        now = start_ns + cycle * period_ns
+        fr.hold(WrenchInput(WRENCH, BASE_FRAME, now))
+        outputs.append(fr.compute(rotation, jac, now, **kwargs))
+    return outputs
+
+
+def shares(outputs, full):
+    """Return each output's torques as a share of the full ones (one number per output)."""
+    axis = int(np.argmax(np.abs(full)))
+    return [out.actuator[axis] / full[axis] for out in outputs]
+
+
+def test_force_comes_back_from_zero_over_the_ramp_time_after_every_interruption():
+    theta = random_theta(np.random.default_rng(23))
+    _, rotation, jac = pose_and_jacobian(theta)
+    full = compute_once(reflection(), WRENCH, BASE_FRAME, theta).actuator
+    fr = reflection(force_ramp_time=0.05)
+    # From the first wrench: 1/50 more a cycle, the direction kept, then the whole force.
+    outputs = ramped_run(fr, rotation, jac, T0, 60)
+    np.testing.assert_allclose(shares(outputs, full), [min(1.0, n / 50) for n in range(60)],
+                               atol=1e-12)
+    for out in outputs[1:]:
+        np.testing.assert_allclose(np.cross(out.actuator[:3], full[:3]), 0.0, atol=1e-12)
+    assert outputs[-1].actuator == pytest.approx(full, abs=1e-12)
+    # Stale for a cycle, refused, disabled, no reply from the device: each starts it again.
+    now = T0 + 59 * MS
+    assert_zero(fr.compute(rotation, jac, now + TIMEOUT_NS + MS), 'stale')
+    again = ramped_run(fr, rotation, jac, now + TIMEOUT_NS + 2 * MS, 3)
+    assert shares(again, full) == pytest.approx([1 / 50, 2 / 50, 3 / 50])
+    now += TIMEOUT_NS + 5 * MS
+    fr.hold(WrenchAdmission().admit((math.nan,) * 6, BASE_FRAME, 0, now, 0))
+    assert_zero(fr.compute(rotation, jac, now), 'rejected')
+    assert shares(ramped_run(fr, rotation, jac, now + MS, 2), full) == pytest.approx(
+        [1 / 50, 2 / 50])
+    fr.enabled = False
+    assert_zero(fr.compute(rotation, jac, now + 3 * MS), 'disabled')
+    fr.enabled = True
+    assert shares(ramped_run(fr, rotation, jac, now + 4 * MS, 1), full) == pytest.approx(
+        [1 / 50])
+    fr.interrupt()
+    assert shares(ramped_run(fr, rotation, jac, now + 5 * MS, 1), full) == pytest.approx(
+        [1 / 50])
+
+
+def test_a_late_cycle_advances_the_ramp_a_tenth_at_most_and_a_gap_starts_it_again():
+    theta = random_theta(np.random.default_rng(24))
+    _, rotation, jac = pose_and_jacobian(theta)
+    full = compute_once(reflection(), WRENCH, BASE_FRAME, theta).actuator
+    fr = reflection(force_ramp_time=0.05)
+    ramped_run(fr, rotation, jac, T0, 60)  # the whole force
+    # 40 ms late (within wrench_timeout): the ramp was not interrupted and the force stays.
+    late = ramped_run(fr, rotation, jac, T0 + 99 * MS, 1)
+    assert shares(late, full) == pytest.approx([1.0])
+    # A gap of more than wrench_timeout between cycles: from zero again.
+    gap = ramped_run(fr, rotation, jac, T0 + 99 * MS + TIMEOUT_NS + MS, 2)
+    assert shares(gap, full) == pytest.approx([0.0, 1 / 50])
+    # Cycles 30 ms apart while ramping: a tenth of the ramp each, not 0.6 of it.
+    fr.interrupt()
+    slow = ramped_run(fr, rotation, jac, T0 + 200 * MS, 3, period_ns=30 * MS)
+    assert shares(slow, full) == pytest.approx([0.1, 0.2, 0.3])
+
+
+def test_the_weight_ramps_in_too_and_the_port_books_the_share_sent():
+    theta = random_theta(np.random.default_rng(25))
+    _, rotation, jac = pose_and_jacobian(theta)
+    fr = reflection(force_ramp_time=0.01)
+    weight = [fr.compute(rotation, jac, T0 + n * MS, holding=HOLDING).actuator
+              for n in range(12)]
+    np.testing.assert_allclose(weight, [np.multiply(HOLDING, min(1.0, n / 10))
+                                        for n in range(12)], atol=1e-12)
+    port = ScaledPort()
+    fr.interrupt()
+    ramped_run(fr, rotation, jac, T0 + 20 * MS, 12, port=port, cartesian_velocity=[0.0] * 6)
+    assert port.shares == pytest.approx([n / 10 for n in range(1, 10)])

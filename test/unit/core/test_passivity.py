@@ -253,6 +253,29 @@ def test_slave_gives_drift_back_in_free_space_and_only_with_spare_energy_in_cont
     assert port.energy_out == before
 
 
+def test_drift_given_back_never_moves_the_command_faster_than_max_speed():
+    port = SlavePort(drift_gain=10.0, max_speed=0.25)
+    port.reset([0.0, 0.0, 0.0])
+    force = [0.0, 0.0, 20.0]
+    port.step([0.0, 0.0, -0.05], force, 0.05)  # no credit: 50 mm of drift
+    assert port.drift == pytest.approx([0.0, 0.0, -0.05])
+    port.credit(100.0)
+    commands = [port.command]
+    for step in range(1, 80):  # the master moves sideways at half the speed limit
+        commands.append(port.step([0.00625 * step, 0.0, -0.05], [0.0, 0.0, 0.0], 0.05))
+    steps = np.linalg.norm(np.diff(commands, axis=0), axis=1)
+    assert max(steps) == pytest.approx(0.0125)  # 0.25 m/s over 0.05 s, the drift's share in it
+    assert port.drift == pytest.approx([0.0, 0.0, 0.0], abs=1e-4)
+    # Without the bound the same drift comes back faster than the speed limit.
+    free = SlavePort(drift_gain=10.0)
+    free.reset([0.0, 0.0, 0.0])
+    free.step([0.0, 0.0, -0.05], force, 0.05)
+    free.credit(100.0)
+    start = free.command
+    assert np.linalg.norm(np.subtract(free.step([0.00625, 0.0, -0.05], [0.0, 0.0, 0.0], 0.05),
+                                      start)) > 0.0125 * 1.05
+
+
 def _channel(round_trip_steps, loss, seed, passivity=True, steps=2000):
     """
     Two ports across a delaying, lossy channel fed adversarial forces and motions.

@@ -1,6 +1,7 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
 """The session checker (kraft_master_report --check) on bags written message by message."""
+import dataclasses
 import json
 
 from harness.crafted_session import (
@@ -85,6 +86,42 @@ def test_a_given_fault_that_makes_the_force_untrue_needs_zero_torque(tmp_path):
     assert check_session(tmp_path / 'bag', faults=[master]).violations == []
     told = dict(blackout, force_untrue=False)
     assert check_session(tmp_path / 'bag', faults=[told]).violations == []
+
+
+@pytest.mark.parametrize('late, found', [(0.03, False), (0.2, True)])
+def test_an_enable_received_after_the_first_torque_and_command_is_out_of_order_within_grace(
+        tmp_path, late, found):
+    # The bridge's ENABLED, its first command and the master's first torque after it: the
+    # recorder may receive them in either order, within state_grace (0.05 s).
+    messages = [(topic, kind, at + late if topic.endswith('operating_state') and
+                 at == ENABLE_AT else at, message)
+                for topic, kind, at, message in session_messages()]
+    write_session(tmp_path / 'bag', messages=messages)
+    lines = check_session(tmp_path / 'bag').violations
+    assert bool(lines) == found, lines
+    assert all('after recorded: bridge FAULT' in line or 'commanded in FAULT' in line
+               for line in lines), lines
+
+
+@pytest.mark.parametrize('side, untrue, found', [
+    ('arm', False, False), ('link', False, False), ('arm', True, True), ('master', False, True),
+    ('clock', False, True)])
+def test_a_torque_step_counts_only_after_a_fault_that_took_the_force_away(
+        tmp_path, side, untrue, found):
+    # At T0 + 3.6 s (past the recovery window of the recorded FAULT) the torque steps from 0.2
+    # to 1 N*m: a stuck sensor's end (the arm's true force returning, as at a touch) may do
+    # that; the driver's force coming back may not.
+    step_at = T0 + 3.6
+    messages = [(topic, kind, at, dataclasses.replace(message, effort=np.full(6, 1.0)))
+                if topic.endswith('joint_states') and at > step_at else
+                (topic, kind, at, message)
+                for topic, kind, at, message in session_messages()]
+    write_session(tmp_path / 'bag', messages=messages)
+    fault = {'kind': 'a fault', 'side': side, 'start': step_at - 0.5, 'end': step_at - 0.01,
+             'force_untrue': untrue}
+    lines = [line for line in check_session(tmp_path / 'bag', faults=[fault]).violations
+             if 'torque rose' in line]
+    assert bool(lines) == found, lines
 
 
 def test_bad_faults_are_refused_naming_the_fault_or_the_line(tmp_path):
