@@ -46,6 +46,7 @@ class Settings(NamedTuple):
     force_deadband: float = 0.0
     moment_deadband: float = 0.0
     force_cutoff_hz: float = 0.0  # 0: no low-pass
+    force_resume_time: float = 0.1  # s over which the wrench comes in as following starts
     max_force: float = 10.0  # N, of the master's wrench
     max_moment: float = 1.0  # N*m
     arm_stiffness: float = 0.0  # N/m of the arm's impedance: the force sent is at most its pull

@@ -10,7 +10,10 @@ old offset. A change of the force path (FORCE) takes effect over RAMP_S: the mas
 blended linearly from what the settings before the change make of each reading to what the
 new ones make of it, so that two wrenches dt apart differ by at most dt / RAMP_S of the
 difference between the two (plus what the reading itself changed). A change during a ramp
-ramps from the blend of that ramp: the wrench never steps.
+ramps from the blend of that ramp: the wrench never steps. When the bridge starts following
+(an enable, a clutch release, a pose fresh again), the wrench comes in from zero over
+force_resume_time, a late tick taking at most a tenth of it, as the driver's force_ramp_time
+does.
 """
 from typing import NamedTuple, Optional
 
@@ -62,6 +65,9 @@ class RampedForce:
         self.path = ForcePath(settings, sensor_rotation)
         self.ramp: Optional[WrenchRamp] = None  # the force path before a change, while ramping
         self.sent_force = np.zeros(3)  # N, master base frame: the last wrench's force
+        # The share of the wrench given since following started (0..1), and when last given.
+        self._resumed = 0.0
+        self._resumed_at: Optional[float] = None
 
     def retune(self, before: Settings, base_rotation: Array, settings: Settings,
                sensor_rotation: Array, now: float) -> None:
@@ -80,8 +86,23 @@ class RampedForce:
         if self.ramp is not None and self.ramp.weight(now) == 1.0:
             self.ramp = None
         wrench = _ramped(self.path, force_feedback, base_rotation, self.ramp, sensed, now)
+        wrench = wrench * self._resume(sensed is not None, now)
         self.sent_force = wrench[:3]
         return wrench
+
+    def _resume(self, following: bool, now: float) -> float:
+        """Return the wrench's share at `now`: zero until following, then up to 1."""
+        if not following:
+            self._resumed, self._resumed_at = 0.0, None
+            return 0.0
+        resume = self.path.settings.force_resume_time
+        if resume <= 0.0:
+            self._resumed = 1.0
+        elif self._resumed_at is not None:
+            elapsed = min(max(now - self._resumed_at, 0.0), 0.1 * resume)
+            self._resumed = min(1.0, self._resumed + elapsed / resume)
+        self._resumed_at = now
+        return self._resumed
 
     def port_force(self, settings: Settings, base_rotation: Array,
                    contact: Optional[Array]) -> Array:

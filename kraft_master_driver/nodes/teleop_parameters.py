@@ -91,6 +91,10 @@ PARAMETERS = {
                                 '(N*m).', low=0.0, high=10.0),
     'force_cutoff_hz': _tunable('force_cutoff_hz', 'Cutoff of the first-order low-pass on the '
                                 'wrench (Hz); 0: none.', low=0.0, high=1000.0),
+    'force_resume_time': _tunable('force_resume_time', "Seconds over which the master's "
+                                  'wrench comes in from zero as the bridge starts following '
+                                  '(an enable, a clutch release, a fresh pose after a hold); '
+                                  '0: at once.', low=0.0, high=1.0),
     'max_force': _tunable('max_force', 'Largest force sent to the master (N).',
                           low=0.0, high=200.0),
     'max_moment': _tunable('max_moment', 'Largest moment sent to the master (N*m).',

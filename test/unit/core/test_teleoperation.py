@@ -24,8 +24,9 @@ class Session:
     """A Teleoperation fed by a stand-in master, arm and F/T sensor, 1 ms per step."""
 
     def __init__(self, **settings):
-        """Start at t = 1 s, every input fresh; speed limits wide unless given (fast tests)."""
-        settings = {'max_linear_speed': 10.0, 'max_angular_speed': 100.0, **settings}
+        """Start at t = 1 s, every input fresh; speed limits wide, no resume ramp unless given."""
+        settings = {'max_linear_speed': 10.0, 'max_angular_speed': 100.0,
+                    'force_resume_time': 0.0, **settings}
         self.bridge = Teleoperation(Settings(**settings))
         self.now = 1.0
         self.master = np.zeros(3)
@@ -588,7 +589,7 @@ NEW_VALUES = {
     'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0,
     'max_input_force': 500.0, 'max_input_moment': 50.0, 'max_input_position': 5.0,
     'passivity': True, 'drift_gain': 5.0, 'slave_port_force': 'sent',
-    'model_tolerance': 5.0}
+    'model_tolerance': 5.0, 'force_resume_time': 0.2}
 PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
 MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
 
@@ -706,3 +707,37 @@ def test_a_refused_change_changes_nothing(change, fragment):
         settings, force, motion_settings)
     for got, wanted in zip(run_on(session, 10), run_on(expected, 10)):
         np.testing.assert_array_equal(got, wanted)
+
+
+def resumed_shares(session, steps):
+    """Follow on pressed for `steps` 1 ms steps; return each wrench's force over the full one."""
+    forces = []
+    for _ in range(steps):
+        session.follow(session.master, reading=PRESSED)
+        forces.append(session.bridge.master_wrench(session.now)[2])
+    return np.array(forces) / forces[-1]
+
+
+def test_the_wrench_comes_in_from_zero_as_following_starts_after_an_enable_and_a_clutch():
+    session = Session(force_resume_time=0.1, max_force=20.0, max_moment=2.0)
+    session.feed(reading=PRESSED)
+    session.enabled()  # its feed, the first step, follows at zero share
+    ramp = np.minimum(np.arange(1, 151) / 100, 1.0)
+    np.testing.assert_allclose(resumed_shares(session, 150), ramp, atol=1e-9)
+    # Clutched: zero; released: from zero again.
+    session.bridge.set_clutch(True)
+    session.feed(reading=PRESSED)
+    assert not session.bridge.master_wrench(session.now).any()
+    session.bridge.set_clutch(False)
+    session.feed(reading=PRESSED)
+    np.testing.assert_allclose(resumed_shares(session, 150), ramp, atol=1e-9)
+    # A late tick (50 ms) takes a tenth of the ramp, not half of it.
+    session.bridge.set_clutch(True)
+    session.feed(reading=PRESSED)
+    session.bridge.set_clutch(False)
+    session.feed(reading=PRESSED)
+    session.now += 0.049
+    shares = resumed_shares(session, 100)
+    assert shares[0] == pytest.approx(0.1)
+    np.testing.assert_allclose(shares[1:], np.minimum(0.1 + np.arange(1, 100) / 100, 1.0),
+                               atol=1e-9)
