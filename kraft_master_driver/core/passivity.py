@@ -103,12 +103,23 @@ class MasterPort(PortEnergy):
     damped() adds a light damper on the wrist's translation, booked with the wrench: the
     energy the hand puts into it is energy in (it fills the reserve, then goes as credit), so
     the slave port has credit to press before the contact's force has crossed back.
+
+    With rise_time set, the share of the wrench the port lets through falls at once but rises
+    from one step to the next by at most the step's time over rise_time (a tenth of it at
+    most): credit that arrives after a dry spell lets the force back in without a step.
+    Giving less than the credit allows takes no energy out, so the port stays passive.
     """
 
-    def __init__(self, damping: float = 0.0) -> None:
-        """damping: N*s/m of the booked damper; start idle, the first step() sets the clock."""
+    def __init__(self, damping: float = 0.0, rise_time: float = 0.0) -> None:
+        """
+        damping: N*s/m of the booked damper; rise_time: s (0: the share rises at once).
+
+        Start idle; the first step() sets the clock.
+        """
         super().__init__()
         self.damping = float(damping)
+        self.rise_time = float(rise_time)
+        self._share = 1.0  # the share of the wrench let through at the last step
         self.reserve = 0.0
         self._applied: Sequence[float] | None = None  # the wrench applied since the last sample
         self._last_ns: int | None = None
@@ -144,19 +155,24 @@ class MasterPort(PortEnergy):
         self._last_ns = now_ns
         dt = self._period
         deficit = -self.observed if self.enabled else 0.0
+        share = 1.0
         if deficit > 0.0:
             # Outflow the prediction missed, beyond the reserve: the wrench fades out as the
             # deficit grows to MASTER_RESERVE_J, so that a velocity estimate that lags cannot
             # keep it growing, and fades back in as credit covers it.
-            fade = max(0.0, 1.0 - deficit / MASTER_RESERVE_J)
-            force = [fade * f for f in force]
-        power_out = _dot(force, velocity)
+            share = max(0.0, 1.0 - deficit / MASTER_RESERVE_J)
+        power_out = share * _dot(force, velocity)
         # At most this step's own outflow: a deficit waits for credit.
         excess = min(self._excess(power_out, dt), power_out * dt)
         if excess > 0.0:
-            keep = 1.0 - excess / (power_out * dt)
-            force = [keep * f for f in force]
+            share *= 1.0 - excess / (power_out * dt)
             self.dissipated += excess
+        if self.enabled and self.rise_time > 0.0:
+            rise = min(dt, 0.1 * self.rise_time) / self.rise_time
+            share = min(share, self._share + rise)
+        self._share = share
+        if share < 1.0:
+            force = [share * f for f in force]
         self._applied = force
         return force
 

@@ -67,7 +67,8 @@ class KraftMasterNode(Node):
             contact_damping=self.config['contact_damping'],
             force_ramp_time=self.config['force_ramp_time'])
         self.force.enabled = self.config['force_enabled_at_start']
-        self.master_port = MasterPort(self.config['passivity_damping'])
+        self.master_port = MasterPort(self.config['passivity_damping'],
+                                      self.config['force_ramp_time'])
         self.master_port.enabled = self.config['passivity']
         self.velocity = VelocityFilter(self.config['velocity_cutoff_hz'])
         self.model = self._model_feedback()
@@ -273,6 +274,8 @@ class KraftMasterNode(Node):
             self.master_port.enabled = changes['passivity']
         if 'passivity_damping' in changes:
             self.master_port.damping = changes['passivity_damping']
+        if 'force_ramp_time' in changes:
+            self.master_port.rise_time = changes['force_ramp_time']
         if 'velocity_cutoff_hz' in changes:
             self.velocity.cutoff_hz = changes['velocity_cutoff_hz']
         if 'publish_decimation' in changes:

@@ -90,7 +90,9 @@ PARAMETERS = {
                             read_only=False, low=0.0, high=100.0),
     'force_ramp_time': Spec(0.05, 'After torques were zeroed (force disabled, a stale or '
                             'refused wrench, no reply from the device, a gap in the cycles), '
-                            'the force comes back from zero over this time (s); 0: at once.',
+                            'the force comes back from zero over this time (s); with '
+                            'passivity on, the share of the force its port lets through '
+                            'rises no faster. 0: at once.',
                             read_only=False, low=0.0, high=1.0),
     'gravity_compensation': Spec(False, 'Add the motor torques that hold the arm up against '
                                  'its weight (from gravity_parameters) while force output is '

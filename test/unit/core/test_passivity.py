@@ -88,6 +88,29 @@ def test_master_controller_leaves_energy_in_alone_and_stands_still():
     assert port.dissipated == 0.0
 
 
+def test_with_a_rise_time_credit_after_a_dry_spell_lets_the_force_back_in_gradually():
+    port = MasterPort(rise_time=0.05)
+    force, velocity = [5.0, 0, 0, 0, 0, 0], [0.1, 0, 0, 0, 0, 0]
+    # No credit: the force pushing the hand along is held back entirely.
+    assert stepped(port, force, velocity, steps=5) == [0.0] * 6
+    port.credit(1.0)
+    shares = []
+    for k in range(1, 61):
+        shares.append(port.step(force, velocity, (5 + k) * MS)[0] / force[0])
+        port.moved([1e-3 * v for v in velocity])
+    # 1 ms over 50 ms a step: 1/50 more each time, up to the whole force.
+    np.testing.assert_allclose(shares, np.minimum(np.arange(1, 61) / 50, 1.0), atol=1e-12)
+    # It falls at once: when the credit (1 J at 0.5 W: 2 s) runs out, the force goes in one
+    # step, and never more comes out than came in.
+    given = []
+    for k in range(61, 2200):
+        given.append(port.step(force, velocity, (5 + k) * MS)[0])
+        port.moved([1e-3 * v for v in velocity])
+    first_short = next(index for index, value in enumerate(given) if value < force[0])
+    assert given[first_short + 1] == pytest.approx(0.0, abs=1e-9)  # the rest, then nothing
+    assert port.energy_out == pytest.approx(1.0)
+
+
 def test_master_booking_follows_what_was_applied():
     port = MasterPort()
     port.enabled = False
