@@ -37,7 +37,7 @@ DEFAULTS: dict[str, Any] = {
     'max_linear_speed': Settings().max_linear_speed, 'max_angular_speed':
     Settings().max_angular_speed, 'max_step_s': MAX_STEP, 'hold_tolerance': 0.002,
     'state_grace': 0.05, 'torque_zero_within': 0.110, 'torque_zero': 1e-9,
-    'max_torque_step': 0.5, 'recovery_window': 1.0, 'frame_tolerance': 2,
+    'max_torque_step': 0.5, 'come_back_window': 0.2, 'frame_tolerance': 2,
     'energy_tolerance': 0.003, 'energy_grace': 0.01, 'frame_gap': 0.1, 'passivity': None}
 CHECKS = ('command steps', 'holds after a fault', 'torque zero after a fault',
           'torque steps as force comes back', 'pot frames all recorded', 'energy never generated')

@@ -69,7 +69,7 @@ class Limits(NamedTuple):
     torque_zero_within: float  # s after a fault that makes the force untrue
     torque_zero: float  # N*m: an effort this small is zero
     max_torque_step: float  # N*m per message when the force comes back
-    recovery_window: float  # s after a fault's end in which that step is checked
+    come_back_window: float  # s from the first torque after a fault in which its rise counts
     frame_tolerance: int  # pot frames a diagnostics count may differ from the bag at its stamp
     energy_tolerance: float  # J a port may hand out beyond its credit
     energy_grace: float  # s: credit received this much after a port's message still counts
@@ -214,24 +214,28 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Vi
     """
     Check that the torque rises by at most max_torque_step a message as force comes back.
 
-    After a fault that makes the force untrue or one on the master's or the clock's side (the
-    driver zeroes the torque for them); not after a stuck sensor, a loss burst or a delay
-    step: the force that comes through them is the arm's, and a step in it is the arm's
-    contact changing, as at a touch.
+    The torque's size (its largest axis) from the first message with torque at or after a
+    fault's end, for come_back_window: the force coming back, not a touch seconds later. After
+    a fault that makes the force untrue or one on the master's or the clock's side (the driver
+    zeroes the torque for them); not after a stuck sensor, a loss burst or a delay step: the
+    force that comes through them is the arm's, and a step in it is the arm's contact
+    changing, as at a touch.
     """
     found = []
-    values = effort.values
-    steps = np.max(np.abs(np.diff(values, axis=0)), axis=1, initial=0.0)
-    size = np.max(np.abs(values), axis=1, initial=0.0)
-    rising = size[1:] > size[:-1]
+    size = np.max(np.abs(effort.values), axis=1, initial=0.0)
+    rises = np.diff(size)
     for fault in faults:
         if not (fault.force_untrue or fault.side in ('master', 'clock')):
             continue
-        rows = np.flatnonzero((effort.t[1:] >= fault.end) &
-                              (effort.t[1:] <= fault.end + limits.recovery_window) &
-                              rising & (steps > limits.max_torque_step))
+        after = np.flatnonzero((effort.t >= fault.end) & (size > limits.torque_zero))
+        if not after.size:
+            continue
+        back = float(effort.t[after[0]])
+        rows = np.flatnonzero((effort.t[1:] >= back) &
+                              (effort.t[1:] <= back + limits.come_back_window) &
+                              (rises > limits.max_torque_step))
         found += _first(effort, rows + 1, lambda row: (
-            f'torque rose {steps[row - 1]:.4f} N*m in one message as force came back after '
+            f'torque rose {rises[row - 1]:.4f} N*m in one message as force came back after '
             f'{fault.kind} ({fault.side}) ended at {fault.end:.3f} s (bound '
             f'{limits.max_torque_step:g} N*m)'))
     return found
