@@ -35,8 +35,8 @@ from kraft_master_driver.core.passivity import SlavePort
 from kraft_master_driver.core.rotations import norm, rotation_parameter
 from kraft_master_driver.core.teleoperation_contact import ContactSharing, Registration
 from kraft_master_driver.core.teleoperation_inputs import (
-    checked_pose, checked_reading, enable_refusal, Floats, stale_arm_side, tare_refusal,
-    tracking_error)
+    arm_side_fresh, checked_pose, checked_reading, enable_refusal, Floats, stale_arm_side,
+    tare_refusal, tracking_error)
 from kraft_master_driver.core.teleoperation_motion import Motion, Pose
 from kraft_master_driver.core.teleoperation_settings import Array, checked, MAX_STEP, Settings
 from kraft_master_driver.core.teleoperation_tuning import (
@@ -268,7 +268,10 @@ class Teleoperation:
         port = self.port
         energy = (port.energy_in, port.energy_out, port.dissipated)
         feeling = self.following and self.settings.force_feedback
-        mapped = self.motion.registration if feeling else None
+        # A model of a contact the arm no longer reports is untrue: no contact, long before
+        # a FAULT (arm_timeout, ft_timeout).
+        fresh = arm_side_fresh(self.arm, self.reading, now, self.settings.model_input_timeout)
+        mapped = self.motion.registration if feeling and fresh else None
         model = self.contact.to_send(
             None if mapped is None else Registration(*mapped, self.base_rotation), now)
         return self._outputs(None if self.following else self._command(),

@@ -100,6 +100,12 @@ def stale_arm_side(settings: Settings, arm: Sample, reading: Sample,
     return None
 
 
+def arm_side_fresh(arm: Sample, reading: Sample, now: float, limit: float) -> bool:
+    """Return whether the arm's pose and its F/T reading are both younger than `limit` s."""
+    return (arm is not None and reading is not None and now - arm[1] <= limit
+            and now - reading[1] <= limit)
+
+
 def tare_refusal(settings: Settings, arm: Sample, reading: Sample, now: float) -> Optional[str]:
     """Return why the F/T bias cannot be taken at `now`, or None."""
     if reading is None or now - reading[1] > settings.ft_timeout:

@@ -589,7 +589,7 @@ NEW_VALUES = {
     'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0,
     'max_input_force': 500.0, 'max_input_moment': 50.0, 'max_input_position': 5.0,
     'passivity': True, 'drift_gain': 5.0, 'slave_port_force': 'sent',
-    'model_tolerance': 5.0, 'force_resume_time': 0.2}
+    'model_tolerance': 5.0, 'force_resume_time': 0.2, 'model_input_timeout': 0.05}
 PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
 MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
 
@@ -741,3 +741,26 @@ def test_the_wrench_comes_in_from_zero_as_following_starts_after_an_enable_and_a
     assert shares[0] == pytest.approx(0.1)
     np.testing.assert_allclose(shares[1:], np.minimum(0.1 + np.arange(1, 100) / 100, 1.0),
                                atol=1e-9)
+
+
+def test_a_contact_the_arm_no_longer_reports_is_withdrawn_before_any_fault():
+    session = Session(arm_timeout=2.0, ft_timeout=2.0, model_input_timeout=0.1,
+                      max_force=50.0).enabled()
+    for step in range(1, 600):  # pressing a 3000 N/m table 1 mm below, slowly up and down
+        depth = 0.0015 + 0.0015 * math.sin(0.005 * step)
+        session.follow((0.0, 0.0, -0.001 - depth),
+                       reading=(0.0, 0.0, 3000.0 * depth, 0.0, 0.0, 0.0))
+    assert session.bridge.contact.estimator.model().stiffness > 1000.0, 'the table is modelled'
+    # The arm falls silent, the master does not: within model_input_timeout the master is sent
+    # no contact, while the bridge still follows (it faults after arm_timeout, ft_timeout).
+    withdrawn, last_input = None, session.now
+    for _ in range(150):
+        session.now += DT
+        session.bridge.master_pose('kraft_master_base', session.master,
+                                   session.master_orientation, session.now)
+        outputs = session.bridge.tick(session.now)
+        if outputs.contact_model is not None and outputs.contact_model.stiffness == 0.0:
+            withdrawn = session.now
+            break
+    assert withdrawn is not None and withdrawn - last_input <= 0.1 + DT
+    assert session.bridge.state is OperatingState.ENABLED
