@@ -35,7 +35,7 @@ from kraft_master_driver.core.passivity import SlavePort
 from kraft_master_driver.core.rotations import norm, rotation_parameter
 from kraft_master_driver.core.teleoperation_contact import ContactSharing, Registration
 from kraft_master_driver.core.teleoperation_inputs import (
-    arm_side_fresh, checked_pose, checked_reading, enable_refusal, Floats, stale_arm_side,
+    arm_side_late, checked_pose, checked_reading, enable_refusal, Floats, stale_arm_side,
     tare_refusal, tracking_error)
 from kraft_master_driver.core.teleoperation_motion import Motion, Pose
 from kraft_master_driver.core.teleoperation_settings import Array, checked, MAX_STEP, Settings
@@ -149,10 +149,15 @@ class Teleoperation:
         return self._outputs()
 
     def _fault(self, reason: str, now: float) -> None:
-        """Go to FAULT: an arm that was driven holds where measured if fresh, else commanded."""
-        if self.state in DRIVING:
+        """
+        Go to FAULT: an arm that followed holds where measured, else where it was last sent.
+
+        Where measured only if that is younger than arm_hold_timeout: an older pose is not
+        where the arm is. An arm already held stays where it was held.
+        """
+        if self.following:
             arm = self.arm
-            if arm is not None and now - arm[1] <= self.settings.arm_timeout:
+            if arm is not None and now - arm[1] <= self.settings.arm_hold_timeout:
                 self.hold = arm[0]
             else:
                 self.hold = self.motion.command or self.hold
@@ -268,10 +273,7 @@ class Teleoperation:
         port = self.port
         energy = (port.energy_in, port.energy_out, port.dissipated)
         feeling = self.following and self.settings.force_feedback
-        # A model of a contact the arm no longer reports is untrue: no contact, long before
-        # a FAULT (arm_timeout, ft_timeout).
-        fresh = arm_side_fresh(self.arm, self.reading, now, self.settings.model_input_timeout)
-        mapped = self.motion.registration if feeling and fresh else None
+        mapped = self.motion.registration if feeling else None
         model = self.contact.to_send(
             None if mapped is None else Registration(*mapped, self.base_rotation), now)
         return self._outputs(None if self.following else self._command(),
@@ -287,7 +289,16 @@ class Teleoperation:
         stale = stale_arm_side(settings, self.arm, self.reading, now)
         if stale is not None:
             self._fault(stale, now)
-        elif self.following and now - self.master[1] > settings.master_timeout:
+            return
+        if not self.following:
+            return
+        late = arm_side_late(settings, self.arm, self.reading, now)
+        if late is not None:
+            # The arm's side is late, not yet faulty: hold the arm where it was sent (it may
+            # not have followed) and free the master; both fresh again, it registers anew.
+            self._hold_here()
+            self.reason = f'holding: {late}'
+        elif now - self.master[1] > settings.master_timeout:
             self._hold_here()
             self.reason = f'holding: pose older than master_timeout {settings.master_timeout:g} s'
 
@@ -304,6 +315,8 @@ class Teleoperation:
         self.master = (pose, now)
         if self.state is OperatingState.ENABLED:
             if self.motion.registration is None:
+                if arm_side_late(self.settings, self.arm, self.reading, now) is not None:
+                    return self._outputs()  # held until the arm's side is fresh again
                 assert self.hold is not None  # enable, the clutch and a stale pose set it
                 self.reason = ''
                 self.motion.register(pose, self.hold)

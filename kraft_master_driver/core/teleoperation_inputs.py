@@ -100,10 +100,15 @@ def stale_arm_side(settings: Settings, arm: Sample, reading: Sample,
     return None
 
 
-def arm_side_fresh(arm: Sample, reading: Sample, now: float, limit: float) -> bool:
-    """Return whether the arm's pose and its F/T reading are both younger than `limit` s."""
-    return (arm is not None and reading is not None and now - arm[1] <= limit
-            and now - reading[1] <= limit)
+def arm_side_late(settings: Settings, arm: Sample, reading: Sample,
+                  now: float) -> Optional[str]:
+    """Return why the arm is held at `now` (its pose or reading older than arm_hold_timeout)."""
+    limit = settings.arm_hold_timeout
+    if arm is None or now - arm[1] > limit:
+        return f'measured_cp older than arm_hold_timeout {limit:g} s'
+    if settings.force_feedback and (reading is None or now - reading[1] > limit):
+        return f'measured_cf older than arm_hold_timeout {limit:g} s'
+    return None
 
 
 def tare_refusal(settings: Settings, arm: Sample, reading: Sample, now: float) -> Optional[str]:

@@ -57,7 +57,7 @@ class Settings(NamedTuple):
     drift_gain: float = 2.0
     slave_port_force: str = 'contact'  # one of SLAVE_PORT_FORCES
     model_tolerance: float = 0.0  # N the contact force may exceed the contact model's; 0: any
-    model_input_timeout: float = 0.1  # s: older arm inputs send the master no contact
+    arm_hold_timeout: float = 0.1  # s: older arm inputs hold the arm (a FAULT comes later)
 
 
 class Checked(NamedTuple):

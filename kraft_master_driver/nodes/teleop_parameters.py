@@ -118,11 +118,11 @@ PARAMETERS = {
                                  "'sent', the force sent to the master, in its units, and no "
                                  "moment unless orientation is 'follow' (see doc/passivity.md).",
                                  choices=SLAVE_PORT_FORCES),
-    'model_input_timeout': _tunable('model_input_timeout', 'The contact model is sent only '
-                                    'while measured_cp and measured_cf are younger than this '
-                                    '(s); older, the master is sent no contact, however long '
-                                    'arm_timeout and ft_timeout wait to FAULT.',
-                                    low=0.001, high=10.0),
+    'arm_hold_timeout': _tunable('arm_hold_timeout', 'A measured_cp or measured_cf older '
+                                 'than this (s) holds the arm where it was last sent, the '
+                                 'master free and told no contact, until both are fresh again '
+                                 '(registered anew, as after a clutch); arm_timeout and '
+                                 'ft_timeout FAULT later.', low=0.001, high=10.0),
     'model_tolerance': _tunable('model_tolerance', 'Force (N) by which the arm may press harder '
                                 'than the contact model the master was last sent; beyond it the '
                                 "arm's target goes no deeper into the surface until the force "

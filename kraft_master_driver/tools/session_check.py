@@ -122,12 +122,15 @@ class _Pair:
         self.bridge = node_statuses(namespace, diagnostics, lambda values: 'state' in values)
 
     def recorded_faults(self, frame_gap: float) -> list[Fault]:
-        """Return the faults the recording shows: FAULT, a stale master pose, no pot frames."""
+        """Return the faults the recording shows: FAULT, a late input's hold, no pot frames."""
         faults = [Fault('recorded: bridge FAULT', 'arm', p.start, p.end, True)
                   for p in self.periods if p.state == 'FAULT']
         faults += [Fault('recorded: master pose stale', 'link', p.start, p.end, True)
                    for p in self.periods if p.state == 'ENABLED' and
-                   p.reason.startswith('holding')]
+                   p.reason.startswith('holding: pose')]
+        faults += [Fault('recorded: arm side late', 'arm', p.start, p.end, True)
+                   for p in self.periods if p.state == 'ENABLED' and
+                   p.reason.startswith('holding: measured')]
         frames = self.effort or _series(self.pots, 'position')
         if frames is not None:
             gaps = np.flatnonzero(np.diff(frames.t) > frame_gap)

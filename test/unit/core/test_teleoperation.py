@@ -589,7 +589,7 @@ NEW_VALUES = {
     'force_cutoff_hz': 5.0, 'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0,
     'max_input_force': 500.0, 'max_input_moment': 50.0, 'max_input_position': 5.0,
     'passivity': True, 'drift_gain': 5.0, 'slave_port_force': 'sent',
-    'model_tolerance': 5.0, 'force_resume_time': 0.2, 'model_input_timeout': 0.05}
+    'model_tolerance': 5.0, 'force_resume_time': 0.2, 'arm_hold_timeout': 0.05}
 PRESSED = (0.0, 0.0, 4.0, 0.0, 0.0, 0.2)  # a steady contact, across the master's motion
 MASTER_STEP = np.array([0.0001, 0.0, 0.0])  # m per 1 ms step
 
@@ -681,7 +681,8 @@ def test_a_force_change_ramps_linearly_over_the_ramp_time():
 
 
 def test_force_feedback_turned_off_fades_the_wrench_out_at_the_ticks():
-    session = following_with_contact(master_timeout=1.0, arm_timeout=1.0, ft_timeout=1.0)
+    session = following_with_contact(master_timeout=1.0, arm_timeout=1.0, ft_timeout=1.0,
+                                     arm_hold_timeout=1.0)
     bridge = session.bridge
     bridge.configure(bridge.settings._replace(force_feedback=False), session.now)
     halfway = bridge.tick(session.now + RAMP_S / 2).wrench
@@ -743,24 +744,36 @@ def test_the_wrench_comes_in_from_zero_as_following_starts_after_an_enable_and_a
                                atol=1e-9)
 
 
-def test_a_contact_the_arm_no_longer_reports_is_withdrawn_before_any_fault():
-    session = Session(arm_timeout=2.0, ft_timeout=2.0, model_input_timeout=0.1,
+def test_a_late_arm_is_held_and_its_contact_withdrawn_before_any_fault_then_followed_again():
+    session = Session(arm_timeout=2.0, ft_timeout=2.0, arm_hold_timeout=0.1,
                       max_force=50.0).enabled()
     for step in range(1, 600):  # pressing a 3000 N/m table 1 mm below, slowly up and down
         depth = 0.0015 + 0.0015 * math.sin(0.005 * step)
         session.follow((0.0, 0.0, -0.001 - depth),
                        reading=(0.0, 0.0, 3000.0 * depth, 0.0, 0.0, 0.0))
     assert session.bridge.contact.estimator.model().stiffness > 1000.0, 'the table is modelled'
-    # The arm falls silent, the master does not: within model_input_timeout the master is sent
-    # no contact, while the bridge still follows (it faults after arm_timeout, ft_timeout).
-    withdrawn, last_input = None, session.now
-    for _ in range(150):
+    # The arm falls silent, the master moves on: within arm_hold_timeout the arm is held where
+    # it was sent and the master is sent no contact, long before a FAULT.
+    bridge, last_input = session.bridge, session.now
+    sent = bridge.arm_command().position
+    withdrawn = None
+    for step in range(1, 300):
         session.now += DT
-        session.bridge.master_pose('kraft_master_base', session.master,
-                                   session.master_orientation, session.now)
-        outputs = session.bridge.tick(session.now)
-        if outputs.contact_model is not None and outputs.contact_model.stiffness == 0.0:
+        bridge.master_pose('kraft_master_base', session.master + [0.0001 * step, 0.0, 0.0],
+                           session.master_orientation, session.now)
+        outputs = bridge.tick(session.now)
+        if withdrawn is None and outputs.contact_model is not None and (
+                outputs.contact_model.stiffness == 0.0):
             withdrawn = session.now
-            break
     assert withdrawn is not None and withdrawn - last_input <= 0.1 + DT
-    assert session.bridge.state is OperatingState.ENABLED
+    assert bridge.describe() == 'ENABLED: holding: measured_cp older than arm_hold_timeout 0.1 s'
+    # Sent on only as far as the master moved until arm_hold_timeout (0.1 m/s for 0.1 s).
+    np.testing.assert_allclose(bridge.arm_command().position, sent, atol=0.0001 * 102)
+    held = bridge.arm_command().position
+    assert not bridge.master_wrench(session.now).any()
+    # Fresh again: registered anew where it was held, one master step on, no jump.
+    session.master = session.master + [0.03, 0.0, 0.0]
+    command = session.follow(session.master + [0.0001, 0.0, 0.0])
+    command = session.follow(session.master + [0.0001, 0.0, 0.0])
+    assert bridge.describe() == 'ENABLED'
+    assert np.linalg.norm(command.position - held) <= 0.0001 + 1e-12
