@@ -444,7 +444,8 @@ RUN_TIME_VALUES = {
     'moment_scale': 0.5, 'force_deadband': 1.0, 'moment_deadband': 0.1, 'force_cutoff_hz': 5.0,
     'max_force': 2.0, 'max_moment': 0.2, 'arm_stiffness': 2000.0, 'max_input_force': 500.0,
     'max_input_moment': 50.0, 'max_input_position': 5.0, 'passivity': True, 'drift_gain': 5.0,
-    'slave_port_force': 'sent', 'force_feedback': False, 'model_tolerance': 5.0}
+    'slave_port_force': 'sent', 'force_feedback': False, 'model_tolerance': 5.0,
+    'force_resume_time': 0.2, 'arm_hold_timeout': 1.0}
 # A steady contact along z, across the master's motion along x (no work for passivity to
 # book), with a moment about z.
 PRESSED = np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.2])
