@@ -116,6 +116,8 @@ class Teleoperation:
         self.arm: Optional[tuple[Pose, float]] = None
         self.reading: Optional[tuple[Array, float]] = None  # (6 floats, sensor frame; time)
         self.hold: Optional[Pose] = None  # the pose the arm holds while not following
+        # Held because the arm's side was late: it follows again from where it is measured.
+        self._held_for_arm = False
         self._reported: Optional[tuple[OperatingState, str]] = None  # the state last returned
 
     # -- state -------------------------------------------------------------------------
@@ -201,6 +203,7 @@ class Teleoperation:
         assert self.arm is not None  # enable_refusal needs it fresh
         # Registered at the next master pose: the arm's target starts where it is.
         self.motion.command, self.hold, self.motion.registration = None, self.arm[0], None
+        self._held_for_arm = False
         self.state = OperatingState.CLUTCHED if self.clutch_pressed else OperatingState.ENABLED
         self.reason = ''
         return None
@@ -297,6 +300,7 @@ class Teleoperation:
             # The arm's side is late, not yet faulty: hold the arm where it was sent (it may
             # not have followed) and free the master; both fresh again, it registers anew.
             self._hold_here()
+            self._held_for_arm = True
             self.reason = f'holding: {late}'
         elif now - self.master[1] > settings.master_timeout:
             self._hold_here()
@@ -317,6 +321,11 @@ class Teleoperation:
             if self.motion.registration is None:
                 if arm_side_late(self.settings, self.arm, self.reading, now) is not None:
                     return self._outputs()  # held until the arm's side is fresh again
+                if self._held_for_arm:
+                    # A stalled or restarted arm is where it is measured, not where it was
+                    # sent: from there, not dragged back.
+                    assert self.arm is not None  # fresh, just checked
+                    self.hold, self._held_for_arm = self.arm[0], False
                 assert self.hold is not None  # enable, the clutch and a stale pose set it
                 self.reason = ''
                 self.motion.register(pose, self.hold)

@@ -744,7 +744,7 @@ def test_the_wrench_comes_in_from_zero_as_following_starts_after_an_enable_and_a
                                atol=1e-9)
 
 
-def test_a_late_arm_is_held_and_its_contact_withdrawn_before_any_fault_then_followed_again():
+def test_a_late_arm_is_held_its_contact_withdrawn_before_any_fault_then_followed_from_there():
     session = Session(arm_timeout=2.0, ft_timeout=2.0, arm_hold_timeout=0.1,
                       max_force=50.0).enabled()
     for step in range(1, 600):  # pressing a 3000 N/m table 1 mm below, slowly up and down
@@ -771,9 +771,12 @@ def test_a_late_arm_is_held_and_its_contact_withdrawn_before_any_fault_then_foll
     np.testing.assert_allclose(bridge.arm_command().position, sent, atol=0.0001 * 102)
     held = bridge.arm_command().position
     assert not bridge.master_wrench(session.now).any()
-    # Fresh again: registered anew where it was held, one master step on, no jump.
-    session.master = session.master + [0.03, 0.0, 0.0]
-    command = session.follow(session.master + [0.0001, 0.0, 0.0])
-    command = session.follow(session.master + [0.0001, 0.0, 0.0])
+    # Back, restarted 30 mm from where it was sent: registered anew where it is measured, one
+    # master step on; not dragged back to where it was sent.
+    restarted = held + [0.0, 0.03, 0.0]
+    session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
+    session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
     assert bridge.describe() == 'ENABLED'
-    assert np.linalg.norm(command.position - held) <= 0.0001 + 1e-12
+    session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
+    command = bridge.arm_command()
+    assert np.linalg.norm(command.position - restarted) <= 0.0001 + 1e-12
