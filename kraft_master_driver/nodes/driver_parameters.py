@@ -115,7 +115,8 @@ PARAMETERS = {
     'wrist_frame': Spec('kraft_master_wrist', 'frame_id of the wrist frame {6}.'),
     'joint_prefix': Spec('', 'Prefix of the joint names, e.g. "left_" for two arms.'),
     'sim_operator': Spec('hold', 'Simulated operator hand (port "sim"): hold, sweep, '
-                         'random_walk or push.', choices=('hold', 'sweep', 'random_walk', 'push')),
+                         'random_walk, push or task.',
+                         choices=('hold', 'sweep', 'random_walk', 'push', 'task')),
     'sim_noise_counts': Spec(0.0, 'Pot noise of the simulated device (counts, 1 sigma).',
                              low=0.0, high=100.0),
     'allow_multiple_wrench_sources': Spec(

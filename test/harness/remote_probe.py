@@ -4,7 +4,8 @@
 An observer on the arm's host, run as a process there by the two-host tests.
 
 Beside the bridge and the simulated arm, it waits for `--poses` of the driver's `pose`, then
-for the bridge's `wrench` and for the driver's `joint_states` to carry a torque. It prints
+for the bridge's `wrench` to have pushed for 0.3 s (past its force_resume_time ramp) and for
+the driver's `joint_states` to carry a torque. It prints
 `pose <count> <min one-way delay s>`, `wrench <force x y z of the last one>` and
 `effort <six torques>`. Exit 0 on success, 1 (with `timeout: ...`) when any of them does not
 come within `--timeout` s. It publishes nothing. run_probe() runs it in a host and returns
@@ -51,6 +52,7 @@ def main():
     clock = node.get_clock()
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     delays, wrenches, efforts = [], [], []
+    pushed_since = []  # when the wrenches became non-zero, while they stay so
 
     def on_pose(msg):
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
@@ -59,6 +61,10 @@ def main():
     def on_wrench(msg):
         force = msg.wrench.force
         wrenches.append((force.x, force.y, force.z))
+        if not any(wrenches[-1]):
+            pushed_since.clear()
+        elif not pushed_since:
+            pushed_since.append(time.monotonic())
 
     node.create_subscription(PoseStamped, 'pose', on_pose, reliable)
     node.create_subscription(WrenchStamped, 'wrench', on_wrench, reliable)
@@ -66,7 +72,9 @@ def main():
                              lambda msg: efforts.append(list(msg.effort)), reliable)
     deadline = time.monotonic() + args.timeout
     waits = (('poses', lambda: len(delays) >= args.poses),
-             ('a wrench from the bridge', lambda: wrenches and any(wrenches[-1])),
+             # Past the bridge's force_resume_time (0.1 s): the whole push, not its ramp.
+             ('a wrench from the bridge', lambda: pushed_since and
+              time.monotonic() - pushed_since[0] > 0.3),
              ('a torque in joint_states', lambda: efforts and any(efforts[-1])))
     for awaited, arrived in waits:
         while not arrived():

@@ -250,12 +250,17 @@ def test_a_command_in_another_frame_is_refused_in_one_line(install_prefix):
         values = master.client.wait(refused)
         assert values['last refusal'] == "servo_cp refused: frame_id 'world', expected 'base_link'"
         assert np.linalg.norm(position(master.measured_cp[-1]) - home) < 1e-3
-        code, output = arm.interrupt(signal.SIGINT)
-        assert code == 0, output
-        assert "servo_cp refused: frame_id 'world'" in output
+        assert_stops_at_sigint_having_said(arm, "servo_cp refused: frame_id 'world'")
     finally:
         master.close()
         arm.kill()
+
+
+def assert_stops_at_sigint_having_said(arm, text):
+    """Stop the arm's node with SIGINT: exit 0, `text` in its output."""
+    code, output = arm.interrupt(signal.SIGINT)
+    assert code == 0, output
+    assert text in output
 
 
 def test_the_wrist_sensor_faults_switched_on_at_run_time(install_prefix):
@@ -303,9 +308,7 @@ def test_the_wrist_sensor_faults_switched_on_at_run_time(install_prefix):
         assert np.allclose(force(back[-1]), true, atol=0.05)
         refused = switch('smoke')
         assert not refused.successful and 'not one of none, dropout' in refused.reason
-        code, output = arm.interrupt(signal.SIGINT)
-        assert code == 0, output
-        assert 'F/T sensor fault: nan' in output
+        assert_stops_at_sigint_having_said(arm, 'F/T sensor fault: nan')
     finally:
         master.close()
         arm.kill()
