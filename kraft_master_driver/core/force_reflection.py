@@ -22,6 +22,7 @@ import threading
 from typing import Any, NamedTuple, Protocol, TypeVar
 
 from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_ramp import ForceRamp
 from kraft_master_driver.core.validation import (
     checked_changes, choice, finite_real, finite_reals, flag)
 from kraft_master_driver.core.wrench_admission import (
@@ -38,8 +39,6 @@ STATES = (DISABLED, NO_WRENCH, STALE, REJECTED, ACTIVE)
 DRIVEN_AXES = kinematics.DRIVEN_JOINTS
 MAX_WRENCH_TIMEOUT = 5.0
 MAX_FORCE_RAMP_TIME = 1.0
-# A late cycle advances the ramp by at most this share of it.
-RAMP_STEP_LIMIT = 0.1
 DEFAULT_TORQUE_LIMITS = (2.0,) * DRIVEN_AXES
 
 # A matrix as an array or as a sequence of rows (the loop's plain floats), a vector likewise.
@@ -188,11 +187,7 @@ class ForceReflection:
         self._cleared = False  # clear() took the wrench away: nothing, not even the weight
         self._expired: WrenchInput | None = None
         self._was_saturated = False
-        # The share of the force given (0..1): zero after an interruption, then ramped up
-        # as the time ramped (ns) grows to force_ramp_time.
-        self._ramp = 0.0
-        self._ramped_ns = 0
-        self._last_cycle_ns: int | None = None
+        self._ramp = ForceRamp()
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
         self._watchdog_trips = 0
         self._age_expiries = 0
@@ -249,7 +244,7 @@ class ForceReflection:
 
     def interrupt(self) -> None:
         """Note that zero torque went out without compute() (no reply): the force ramps in."""
-        self._ramped_ns = 0
+        self._ramp.restart()
 
     @property
     def counters(self) -> dict[str, int]:
@@ -300,9 +295,9 @@ class ForceReflection:
         """
         hot = self._hot
         settings = hot.settings
-        self._step_ramp(now_ns)
+        self._ramp.step(now_ns, hot.ramp_ns, hot.timeout_ns)
         if not settings.enabled:
-            self._ramped_ns = 0
+            self._ramp.restart()
             return self._idle(DISABLED, port, now_ns)
         share = 0.0 if model is None else model[1]
         state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, share)
@@ -321,7 +316,7 @@ class ForceReflection:
             # The arm's weight alone only before any wrench: stale, refused or several sources
             # refused (cleared) give zero, the weight included.
             if holding is None or state != NO_WRENCH or self._cleared:
-                self._ramped_ns = 0
+                self._ramp.restart()
                 return _ZERO_OUTPUTS[state]
             # The port has nothing of this to book (the wrench's path idled it).
             return self._limited([0.0] * DRIVEN_AXES, holding, actuator_form, state, None, 0.0,
@@ -341,21 +336,6 @@ class ForceReflection:
         if actuator_form:
             torques[1] -= torques[2]  # kinematics.actuator_torques, inlined
         return self._limited(torques, holding, actuator_form, ACTIVE, tag, share, port, now_ns)
-
-    def _step_ramp(self, now_ns: int) -> None:
-        """
-        Advance the ramp by the time since the last cycle, at most RAMP_STEP_LIMIT of it.
-
-        A gap longer than wrench_timeout since the last cycle (the device's own watchdog may
-        have zeroed its torques meanwhile) starts it again from zero.
-        """
-        hot = self._hot
-        last, self._last_cycle_ns = self._last_cycle_ns, now_ns
-        if last is None or now_ns - last > hot.timeout_ns:
-            self._ramped_ns = 0
-        elif self._ramped_ns < hot.ramp_ns:
-            self._ramped_ns += min(max(now_ns - last, 0), round(RAMP_STEP_LIMIT * hot.ramp_ns))
-        self._ramp = min(1.0, self._ramped_ns / hot.ramp_ns) if hot.ramp_ns else 1.0
 
     def _limited(self, torques: list[float], holding: Sequence[float] | None,
                  actuator_form: bool, state: str, tag: object, share: float,
@@ -379,7 +359,7 @@ class ForceReflection:
             self._non_finite_results += 1
             if port is not None:
                 port.scaled(0.0)  # nothing reflected after all
-            self._ramped_ns = 0
+            self._ramp.restart()
             return self._idle(REJECTED, port, now_ns)
         # The largest share of the reflected torques that each axis's headroom allows.
         factor = min([1.0] + [(limit - math.copysign(w, tau)) / abs(tau)
@@ -391,7 +371,7 @@ class ForceReflection:
             if not self._was_saturated:
                 self._saturation_events += 1
         self._was_saturated = saturated
-        ramp = self._ramp
+        ramp = self._ramp.share
         if port is not None and factor * ramp < 1.0:
             port.scaled(factor * ramp)
         # The clamp only trims rounding.

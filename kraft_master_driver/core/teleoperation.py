@@ -35,8 +35,8 @@ from kraft_master_driver.core.passivity import SlavePort
 from kraft_master_driver.core.rotations import norm, rotation_parameter
 from kraft_master_driver.core.teleoperation_contact import ContactSharing, Registration
 from kraft_master_driver.core.teleoperation_inputs import (
-    arm_side_late, checked_pose, checked_reading, enable_refusal, Floats, stale_arm_side,
-    tare_refusal, tracking_error)
+    arm_side_late, checked_pose, checked_reading, enable_refusal, Floats, hold_reason,
+    stale_arm_side, tare_refusal, tracking_error)
 from kraft_master_driver.core.teleoperation_motion import Motion, Pose
 from kraft_master_driver.core.teleoperation_settings import Array, checked, MAX_STEP, Settings
 from kraft_master_driver.core.teleoperation_tuning import (
@@ -115,9 +115,6 @@ class Teleoperation:
         self.master: Optional[tuple[Pose, float]] = None  # (pose, receipt time)
         self.arm: Optional[tuple[Pose, float]] = None
         self.reading: Optional[tuple[Array, float]] = None  # (6 floats, sensor frame; time)
-        self.hold: Optional[Pose] = None  # the pose the arm holds while not following
-        # Held because the arm's side was late: it follows again from where it is measured.
-        self._held_for_arm = False
         self._reported: Optional[tuple[OperatingState, str]] = None  # the state last returned
 
     # -- state -------------------------------------------------------------------------
@@ -151,18 +148,9 @@ class Teleoperation:
         return self._outputs()
 
     def _fault(self, reason: str, now: float) -> None:
-        """
-        Go to FAULT: an arm that followed holds where measured, else where it was last sent.
-
-        Where measured only if that is younger than arm_hold_timeout: an older pose is not
-        where the arm is. An arm already held stays where it was held.
-        """
+        """Go to FAULT: a following arm holds where measured if fresh, else where sent."""
         if self.following:
-            arm = self.arm
-            if arm is not None and now - arm[1] <= self.settings.arm_hold_timeout:
-                self.hold = arm[0]
-            else:
-                self.hold = self.motion.command or self.hold
+            self.motion.hold_at_fault(self.arm, now)
         self.state, self.reason = OperatingState.FAULT, reason
         self.motion.registration = None
 
@@ -170,11 +158,6 @@ class Teleoperation:
         """Go to FAULT for `reason`, a refused input; return it to be said."""
         self._fault(reason, now)
         return self._outputs(refusal=reason)
-
-    def _hold_here(self) -> None:
-        """Hold at the last command (or where the arm is, if nothing was commanded yet)."""
-        self.hold = self.motion.command or self.hold
-        self.motion.registration = None
 
     def enable(self, now: float,
                base_rotation_from_tf: Optional[Callable[[], Sequence[float]]] = None) -> Answer:
@@ -202,8 +185,8 @@ class Teleoperation:
             return refusal
         assert self.arm is not None  # enable_refusal needs it fresh
         # Registered at the next master pose: the arm's target starts where it is.
-        self.motion.command, self.hold, self.motion.registration = None, self.arm[0], None
-        self._held_for_arm = False
+        self.motion.command, self.motion.registration = None, None
+        self.motion.hold, self.motion.held_for_arm = self.arm[0], False
         self.state = OperatingState.CLUTCHED if self.clutch_pressed else OperatingState.ENABLED
         self.reason = ''
         return None
@@ -244,13 +227,13 @@ class Teleoperation:
                 assert self.master is not None  # the registration took a master pose
                 self.motion.register(self.master[0], held)
             else:
-                self.hold = held
+                self.motion.hold = held
 
     def disable(self) -> Answer:
         """Stop: nothing more is sent to the arm."""
         self.state, self.reason = OperatingState.DISABLED, 'disabled'
         self.motion.registration = None
-        self.hold = self.motion.command = None
+        self.motion.hold = self.motion.command = None
         return self._answer(None)
 
     def set_clutch(self, pressed: bool) -> Outputs:
@@ -258,7 +241,7 @@ class Teleoperation:
         if pressed != self.clutch_pressed:
             self.clutch_pressed = pressed
             if pressed and self.state is OperatingState.ENABLED:
-                self._hold_here()
+                self.motion.hold_here()
                 self.state, self.reason = OperatingState.CLUTCHED, ''
             elif not pressed and self.state is OperatingState.CLUTCHED:
                 self.state = OperatingState.ENABLED  # registered at the next master pose
@@ -293,18 +276,10 @@ class Teleoperation:
         if stale is not None:
             self._fault(stale, now)
             return
-        if not self.following:
-            return
-        late = arm_side_late(settings, self.arm, self.reading, now)
-        if late is not None:
-            # The arm's side is late, not yet faulty: hold the arm where it was sent (it may
-            # not have followed) and free the master; both fresh again, it registers anew.
-            self._hold_here()
-            self._held_for_arm = True
-            self.reason = f'holding: {late}'
-        elif now - self.master[1] > settings.master_timeout:
-            self._hold_here()
-            self.reason = f'holding: pose older than master_timeout {settings.master_timeout:g} s'
+        hold = hold_reason(settings, self.master[1], self.arm, self.reading, now)
+        if self.following and hold is not None:
+            self.reason = hold[0]
+            self.motion.hold_here(for_arm=hold[1])
 
     # -- inputs ------------------------------------------------------------------------
 
@@ -321,14 +296,9 @@ class Teleoperation:
             if self.motion.registration is None:
                 if arm_side_late(self.settings, self.arm, self.reading, now) is not None:
                     return self._outputs()  # held until the arm's side is fresh again
-                if self._held_for_arm:
-                    # A stalled or restarted arm is where it is measured, not where it was
-                    # sent: from there, not dragged back.
-                    assert self.arm is not None  # fresh, just checked
-                    self.hold, self._held_for_arm = self.arm[0], False
-                assert self.hold is not None  # enable, the clutch and a stale pose set it
+                assert self.arm is not None  # fresh, just checked
                 self.reason = ''
-                self.motion.register(pose, self.hold)
+                self.motion.follow_again(pose, self.arm[0])
             else:
                 assert previous is not None  # the registration took a master pose
                 contact = self.contact_wrench() if self.reading is not None else None
@@ -345,7 +315,7 @@ class Teleoperation:
         if isinstance(pose, str):
             return self._refuse(pose, now)
         self.arm = (pose, now)
-        reference = self.motion.command if self.following else self.hold
+        reference = self.motion.command if self.following else self.motion.hold
         if self.state in DRIVING and reference is not None:
             error = tracking_error(pose, reference, self.settings)
             if error is not None:
@@ -393,7 +363,7 @@ class Teleoperation:
         """Return the pose the arm should be at now, or None (DISABLED: send nothing)."""
         if self.state is OperatingState.DISABLED:
             return None
-        pose = self.motion.command if self.following else self.hold
+        pose = self.motion.command if self.following else self.motion.hold
         if pose is not None and self.settings.orientation == 'ignore' and self.arm is not None:
             return Pose(pose.position, self.arm[0].rotation)
         return pose

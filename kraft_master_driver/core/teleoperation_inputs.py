@@ -111,6 +111,22 @@ def arm_side_late(settings: Settings, arm: Sample, reading: Sample,
     return None
 
 
+def hold_reason(settings: Settings, master_time: float, arm: Sample, reading: Sample,
+                now: float) -> Optional[tuple[str, bool]]:
+    """
+    Return why a following arm holds at `now`, and whether for its own side; or None.
+
+    Its side late, not yet faulty (arm_hold_timeout): it may not have followed, and is held
+    where it was sent, the master freed; a master pose older than master_timeout.
+    """
+    late = arm_side_late(settings, arm, reading, now)
+    if late is not None:
+        return f'holding: {late}', True
+    if now - master_time > settings.master_timeout:
+        return f'holding: pose older than master_timeout {settings.master_timeout:g} s', False
+    return None
+
+
 def tare_refusal(settings: Settings, arm: Sample, reading: Sample, now: float) -> Optional[str]:
     """Return why the F/T bias cannot be taken at `now`, or None."""
     if reading is None or now - reading[1] > settings.ft_timeout:

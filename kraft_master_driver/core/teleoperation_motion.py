@@ -29,7 +29,7 @@ class Pose(NamedTuple):
 
 
 class Motion:
-    """The arm's command while following: mapped, boxed, speed-limited, through the port."""
+    """The arm's command: following, mapped, boxed, speed-limited, through the port; or held."""
 
     def __init__(self, settings: Settings, box: tuple[Array, Array], port: SlavePort) -> None:
         """Take the settings, the workspace box (lower, upper corner) and the slave port."""
@@ -41,6 +41,35 @@ class Motion:
         self._target: Optional[Pose] = None  # the speed-limited target, before the port
         # Where the arm yields: a normal (arm base) and the least n . x of the target.
         self.floor: Optional[tuple[Array, float]] = None
+        self.hold: Optional[Pose] = None  # the pose the arm holds while not following
+        # Held because the arm's side was late: it follows again from where it is measured.
+        self.held_for_arm = False
+
+    def hold_here(self, for_arm: bool = False) -> None:
+        """Stop following: hold at the last command (or the hold, if none was commanded)."""
+        self.hold = self.command or self.hold
+        self.registration = None
+        self.held_for_arm = for_arm
+
+    def hold_at_fault(self, arm: Optional[tuple[Pose, float]], now: float) -> None:
+        """Stop following: hold where measured, if younger than arm_hold_timeout, else sent."""
+        fresh = arm is not None and now - arm[1] <= self.settings.arm_hold_timeout
+        self.hold_here()
+        if fresh:
+            assert arm is not None
+            self.hold = arm[0]
+
+    def follow_again(self, master: Pose, measured: Pose) -> None:
+        """
+        Register the master's pose anew at the hold.
+
+        An arm held for its own side (stalled, restarted) is where it is measured, not where it
+        was sent: from there, not dragged back.
+        """
+        if self.held_for_arm:
+            self.hold, self.held_for_arm = measured, False
+        assert self.hold is not None  # enable, the clutch and a stale pose set it
+        self.register(master, self.hold)
 
     def register(self, master: Pose, held: Pose) -> None:
         """Take the offset anew: the master's pose `master` maps to the arm's `held`."""

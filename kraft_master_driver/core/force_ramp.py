@@ -1,0 +1,41 @@
+# Copyright 2026 kraft_master_driver contributors
+# Licensed under the Apache License, Version 2.0
+"""
+The ramp of the force coming back after torques were zeroed (core/force_reflection.py).
+
+Pure logic, no ROS, driven by the loop thread alone: restart() at every zero-torque cycle,
+step() once per cycle, whose share (0..1) scales the torques sent.
+"""
+
+# A late cycle advances the ramp by at most this share of it.
+RAMP_STEP_LIMIT = 0.1
+
+
+class ForceRamp:
+    """The share of the force given: zero after an interruption, then up over the ramp's time."""
+
+    def __init__(self) -> None:
+        """Start at zero, before any cycle."""
+        self.share = 0.0
+        self._ramped_ns = 0
+        self._last_cycle_ns: int | None = None
+
+    def restart(self) -> None:
+        """Start again from zero: the torques were zeroed this cycle."""
+        self._ramped_ns = 0
+
+    def step(self, now_ns: int, ramp_ns: int, gap_ns: int) -> float:
+        """
+        Advance by the time since the last cycle, at most RAMP_STEP_LIMIT of ramp_ns.
+
+        A gap longer than gap_ns since the last cycle (the device's own watchdog may have
+        zeroed its torques meanwhile) starts it again from zero. ramp_ns 0: no ramp. Return
+        the share.
+        """
+        last, self._last_cycle_ns = self._last_cycle_ns, now_ns
+        if last is None or now_ns - last > gap_ns:
+            self._ramped_ns = 0
+        elif self._ramped_ns < ramp_ns:
+            self._ramped_ns += min(max(now_ns - last, 0), round(RAMP_STEP_LIMIT * ramp_ns))
+        self.share = min(1.0, self._ramped_ns / ramp_ns) if ramp_ns else 1.0
+        return self.share
