@@ -115,10 +115,12 @@ class _Master:
 
     def __init__(self, session, home_theta):
         self.model = DeviceModel(DEFAULT_DYNAMICS, home_theta)
-        self.reflection = ForceReflection(contact_damping=session.contact_damping, enabled=True)
+        ramp = DRIVER_PARAMETERS['force_ramp_time'].default  # the driver's, as it runs
+        self.reflection = ForceReflection(contact_damping=session.contact_damping, enabled=True,
+                                          force_ramp_time=ramp)
         self.admission = WrenchAdmission()
         self.velocity_filter = VelocityFilter(50.0)
-        self.port = MasterPort(session.passivity_damping)
+        self.port = MasterPort(session.passivity_damping, rise_time=ramp)
         self.port.enabled = session.passivity
         self.feedback = ModelFeedback(
             ModeSelector(ModeSettings(ForceMode(session.force_mode))),
