@@ -9,6 +9,10 @@ step() once per cycle, whose share (0..1) scales the torques sent.
 
 # A late cycle advances the ramp by at most this share of it.
 RAMP_STEP_LIMIT = 0.1
+# The simulated KMC's command watchdog (simulation/master/electronics.py): after a longer gap
+# between cycles the device may have zeroed its torques. A shorter gap zeroes nothing there,
+# so restarting the ramp on it would itself drop the force, the arm's weight included.
+DEVICE_WATCHDOG_NS = 100_000_000
 
 
 class ForceRamp:
@@ -24,16 +28,15 @@ class ForceRamp:
         """Start again from zero: the torques were zeroed this cycle."""
         self._ramped_ns = 0
 
-    def step(self, now_ns: int, ramp_ns: int, gap_ns: int) -> float:
+    def step(self, now_ns: int, ramp_ns: int) -> float:
         """
         Advance by the time since the last cycle, at most RAMP_STEP_LIMIT of ramp_ns.
 
-        A gap longer than gap_ns since the last cycle (the device's own watchdog may have
-        zeroed its torques meanwhile) starts it again from zero. ramp_ns 0: no ramp. Return
-        the share.
+        A gap longer than DEVICE_WATCHDOG_NS since the last cycle starts it again from zero.
+        ramp_ns 0: no ramp. Return the share.
         """
         last, self._last_cycle_ns = self._last_cycle_ns, now_ns
-        if last is None or now_ns - last > gap_ns:
+        if last is None or now_ns - last > DEVICE_WATCHDOG_NS:
             self._ramped_ns = 0
         elif self._ramped_ns < ramp_ns:
             self._ramped_ns += min(max(now_ns - last, 0), round(RAMP_STEP_LIMIT * ramp_ns))

@@ -295,7 +295,7 @@ class ForceReflection:
         """
         hot = self._hot
         settings = hot.settings
-        self._ramp.step(now_ns, hot.ramp_ns, hot.timeout_ns)
+        self._ramp.step(now_ns, hot.ramp_ns)
         if not settings.enabled:
             self._ramp.restart()
             return self._idle(DISABLED, port, now_ns)

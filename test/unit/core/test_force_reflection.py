@@ -10,6 +10,7 @@ from harness.force_reflection import (
 from harness.joints import random_theta
 from hypothesis import given, settings, strategies as st
 from kraft_master_driver.core import kinematics
+from kraft_master_driver.core.force_ramp import DEVICE_WATCHDOG_NS
 from kraft_master_driver.core.force_reflection import ForceReflection
 from kraft_master_driver.core.wrench_admission import (
     BASE_FRAME, REJECTION_REASONS, WrenchAdmission, WrenchInput, WRIST_FRAME)
@@ -518,7 +519,7 @@ def test_force_comes_back_from_zero_over_the_ramp_time_after_every_interruption(
         [1 / 50])
 
 
-def test_a_late_cycle_advances_the_ramp_a_tenth_at_most_and_a_gap_starts_it_again():
+def test_a_late_cycle_advances_the_ramp_a_tenth_at_most_and_a_watchdog_gap_starts_it_again():
     theta = random_theta(np.random.default_rng(24))
     _, rotation, jac = pose_and_jacobian(theta)
     full = compute_once(reflection(), WRENCH, BASE_FRAME, theta).actuator
@@ -527,12 +528,17 @@ def test_a_late_cycle_advances_the_ramp_a_tenth_at_most_and_a_gap_starts_it_agai
     # 40 ms late (within wrench_timeout): the ramp was not interrupted and the force stays.
     late = ramped_run(fr, rotation, jac, T0 + 99 * MS, 1)
     assert shares(late, full) == pytest.approx([1.0])
-    # A gap of more than wrench_timeout between cycles: from zero again.
-    gap = ramped_run(fr, rotation, jac, T0 + 99 * MS + TIMEOUT_NS + MS, 2)
+    # A gap past wrench_timeout but within the device's watchdog zeroed nothing: the force
+    # stays (a restart would drop it, the arm's weight included).
+    within = ramped_run(fr, rotation, jac, T0 + 99 * MS + DEVICE_WATCHDOG_NS, 1)
+    assert shares(within, full) == pytest.approx([1.0])
+    # A gap past the device's watchdog (it may have zeroed its torques): from zero again.
+    gap_start = T0 + 99 * MS + 2 * DEVICE_WATCHDOG_NS + MS
+    gap = ramped_run(fr, rotation, jac, gap_start, 2)
     assert shares(gap, full) == pytest.approx([0.0, 1 / 50])
     # Cycles 30 ms apart while ramping: a tenth of the ramp each, not 0.6 of it.
     fr.interrupt()
-    slow = ramped_run(fr, rotation, jac, T0 + 200 * MS, 3, period_ns=30 * MS)
+    slow = ramped_run(fr, rotation, jac, gap_start + 31 * MS, 3, period_ns=30 * MS)
     assert shares(slow, full) == pytest.approx([0.1, 0.2, 0.3])
 
 
