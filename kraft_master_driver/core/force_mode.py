@@ -10,7 +10,7 @@ passivity as set), 'model' renders the contact model locally (core/contact_rende
 of the arm's messages (their stamps against the receipt; the clocks of the two sides must
 agree, as for max_wrench_age), held at its peak and decaying over `ROUND_TRIP_MEMORY` s, so one
 fast message does not switch back. A switch blends the two forces over `switch_time` s: no
-step at the hand.
+step at the hand. With passivity on, 'auto' renders the model at every round trip.
 """
 from collections.abc import Sequence
 from enum import StrEnum
@@ -44,15 +44,23 @@ class ModeSettings(NamedTuple):
 class ModeSelector:
     """The share of the model in the force (0: direct, 1: model), from the measured delay."""
 
-    def __init__(self, settings: ModeSettings = ModeSettings()) -> None:
-        """Start direct, unless force_mode is 'model'."""
+    def __init__(self, settings: ModeSettings = ModeSettings(), passivity: bool = False) -> None:
+        """
+        Start direct, unless force_mode is 'model', or 'auto' with passivity on.
+
+        passivity (settable later): with it on, 'auto' renders the model at every round trip,
+        as its wall keeps its own books where the direct force through the passivity port is
+        numb.
+        """
         if not 0.0 <= settings.direct_below <= settings.model_above:
             raise ValueError(f'direct_below: {settings.direct_below:g} s must be within 0 .. '
                              f'model_above {settings.model_above:g} s')
         self.settings = settings
+        self.passivity = passivity
         self.round_trip = 0.0  # s, the estimate
         self._round_trip_at = 0
-        self.model_chosen = settings.mode is ForceMode.MODEL
+        self.model_chosen = settings.mode is ForceMode.MODEL or (
+            settings.mode is ForceMode.AUTO and passivity)
         self._weight = 1.0 if self.model_chosen else 0.0
         self._weight_at = 0
 
@@ -64,7 +72,9 @@ class ModeSelector:
         settings = self.settings
         if settings.mode is not ForceMode.AUTO:
             return
-        if not self.model_chosen and self.round_trip > settings.model_above:
+        if self.passivity:
+            self.model_chosen = True
+        elif not self.model_chosen and self.round_trip > settings.model_above:
             self.model_chosen = True
         elif self.model_chosen and self.round_trip < settings.direct_below:
             self.model_chosen = False

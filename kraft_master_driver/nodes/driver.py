@@ -143,7 +143,8 @@ class KraftMasterNode(Node):
             return None
         try:
             selector = ModeSelector(ModeSettings(mode, config['model_above'],
-                                                 config['direct_below'], config['switch_time']))
+                                                 config['direct_below'], config['switch_time']),
+                                    config['passivity'])
         except ValueError as error:
             raise ParameterError(f'parameter {error}') from None
         return ModelFeedback(selector, ContactRenderer(RendererSettings(
@@ -272,6 +273,8 @@ class KraftMasterNode(Node):
                 self._say_rate_command_waits_for_centre()
         if 'passivity' in changes:
             self.master_port.enabled = changes['passivity']
+            if self.model is not None:
+                self.model.selector.passivity = changes['passivity']
         if 'passivity_damping' in changes:
             self.master_port.damping = changes['passivity_damping']
         if 'force_ramp_time' in changes:

@@ -126,7 +126,8 @@ PARAMETERS = {
                        'measured_cp (joint_states and pose again) and take servo_cf (as wrench; '
                        'one source across both).'),
     'passivity': Spec(False, 'Time-domain passivity control of the reflected wrench, fed by '
-                      'the slave_energy topic; false: plain J^T F.', read_only=False),
+                      "the slave_energy topic; with force_mode 'auto', the contact model at "
+                      'any round trip instead; false: plain J^T F.', read_only=False),
     'passivity_damping': Spec(0.0, 'With passivity on, a damper on the wrist (N*s/m) whose '
                               'energy the master port books as energy in: what the hand puts '
                               'into it lets the arm press before the contact force has crossed '
@@ -135,7 +136,8 @@ PARAMETERS = {
     'force_mode': Spec(str(_MODE.mode), "What the operator feels: 'direct', the wrench that "
                        "crossed the link (J^T F); 'model', the arm's contact model "
                        "(contact_model) rendered as a wall in the loop; 'auto', direct below "
-                       'model_above of measured round trip and the model above it.',
+                       'model_above of measured round trip and the model above it, and the '
+                       'model at any round trip with passivity on.',
                        choices=tuple(ForceMode)),
     'model_above': Spec(_MODE.model_above, "force_mode 'auto': the round trip (s) above which "
                         'the model is rendered.', low=0.0, high=10.0),

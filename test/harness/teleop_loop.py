@@ -123,7 +123,7 @@ class _Master:
         self.port = MasterPort(session.passivity_damping, rise_time=ramp)
         self.port.enabled = session.passivity
         self.feedback = ModelFeedback(
-            ModeSelector(ModeSettings(ForceMode(session.force_mode))),
+            ModeSelector(ModeSettings(ForceMode(session.force_mode)), session.passivity),
             ContactRenderer(RendererSettings(rate_hz=1.0 / DT)))
         self.calibration = ArmCalibration.nominal(ARM) if session.pot_counts else None
         self.previous = None

@@ -1,6 +1,6 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""The installed driver with force_mode model: contact_model rendered as a wall, a bad one not."""
+"""The installed driver with force_mode model (and auto): contact_model rendered as a wall."""
 import math
 
 from harness.driver import DriverSession
@@ -8,6 +8,8 @@ from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.contact_model import MODEL_FIELDS
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
@@ -21,16 +23,22 @@ UP = (0.0, 0.0, 1.0)
 @pytest.fixture
 def session(install_prefix):
     """Yield a driver that renders contact_model, force on, and a model publisher."""
+    running = model_session(install_prefix, [('force_mode', 'model')])
+    yield running
+    running.close()
+
+
+def model_session(install_prefix, parameters):
+    """Start a driver with `parameters`, force on, and a model publisher beside its client."""
     # A model_timeout longer than any wait here: only the refusal takes the wall away.
-    running = DriverSession(install_prefix, [('force_mode', 'model'), ('model_timeout', '10'),
+    running = DriverSession(install_prefix, [*parameters, ('model_timeout', '10'),
                                              ('force_enabled_at_start', 'true')])
     running.model_pub = running.client.node.create_publisher(
         JointState, 'contact_model', QoSProfile(depth=10,
                                                 reliability=ReliabilityPolicy.BEST_EFFORT))
     running.client.wait(lambda: running.model_pub.get_subscription_count() > 0 and
                         running.client.poses)
-    yield running
-    running.close()
+    return running
 
 
 def publish_model(session, names, values):
@@ -105,3 +113,29 @@ def test_a_bad_model_takes_the_wall_away_and_a_good_one_brings_it_back(session, 
     stream_model_until(session, MODEL_FIELDS, good, lambda: pressed(session))
     _, output = session.driver.interrupt()
     assert 'contact_model: ' in output and ': no wall' in output, output[-2000:]
+
+
+def test_with_passivity_on_auto_renders_the_wall_at_0_ms_and_direct_force_once_it_is_off(
+        install_prefix):
+    # A zero wrench and the model, both stamped now (0 ms): auto with passivity on renders the
+    # wall; turned off at run time, auto gives the direct (zero) wrench again.
+    running = model_session(install_prefix, [('force_mode', 'auto'), ('passivity', 'true')])
+    try:
+        model = wall_over_the_hand(running)
+
+        def stream_both_until(condition):
+            def publish_and_check():
+                running.client.publish_wrench([0.0] * 6, 'kraft_master_base')
+                publish_model(running, MODEL_FIELDS, model)
+                return condition()
+            return running.client.wait(publish_and_check)
+
+        stream_both_until(lambda: pressed(running))
+        parameters = AsyncParameterClient(running.client.node, '/kraft_master_node')
+        assert parameters.wait_for_services(timeout_sec=20.0)
+        future = parameters.set_parameters([Parameter('passivity', value=False)])
+        running.client.wait(future.done)
+        assert future.result().results[0].successful
+        stream_both_until(lambda: not any(running.client.joint_states[-1].effort))
+    finally:
+        running.close()

@@ -136,6 +136,23 @@ def test_auto_chooses_the_model_above_its_round_trip_and_direct_again_below_with
         ModeSelector(ModeSettings(ForceMode.AUTO, model_above=0.02, direct_below=0.03))
 
 
+def test_with_passivity_on_auto_renders_the_model_at_any_round_trip_until_it_is_off():
+    settings = ModeSettings(ForceMode.AUTO, model_above=0.05, direct_below=0.03, switch_time=0.1)
+    selector = ModeSelector(settings, passivity=True)
+    assert selector.weight(0) == 1.0  # from the start, before any delay is measured
+    selector.delay(0.0, 1_000_000)  # 0 ms round trip
+    assert selector.model_chosen and selector.weight(2_000_000) == 1.0
+    selector.passivity = False  # at run time: direct again below direct_below
+    selector.delay(0.0, 3_000_000)
+    assert not selector.model_chosen
+    assert selector.weight(52_000_000) == pytest.approx(0.5)  # blended, not a step
+    # The other modes do not change with it.
+    for mode, chosen in ((ForceMode.DIRECT, False), (ForceMode.MODEL, True)):
+        fixed = ModeSelector(ModeSettings(mode), passivity=True)
+        fixed.delay(0.0, 0)
+        assert fixed.model_chosen is chosen
+
+
 def test_the_bridge_sends_the_model_in_the_masters_frame_on_change_and_as_a_heartbeat():
     from kraft_master_driver.core.teleoperation_contact import (
         ContactSharing, HEARTBEAT, Registration)
