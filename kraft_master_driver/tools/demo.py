@@ -344,14 +344,25 @@ def _stop_on_signal(*_):
     raise KeyboardInterrupt
 
 
+def bridge_passivity(passivity, force_mode):
+    """
+    Return whether the bridge's slave port is on, the driver's passivity and force_mode given.
+
+    The port guards a force that crosses the link: with the contact model (force_mode other
+    than 'direct', which with passivity on is the model at any round trip) none does, and the
+    port would only starve the arm (doc/passivity.md).
+    """
+    return passivity and force_mode == ForceMode.DIRECT
+
+
 def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mujoco',
                 force_mode='auto'):
     """
     Run the processes for `duration` s once all are up (or until Ctrl-C), showing them.
 
     With delay_ms > 0 the bridge and the arm run on the next DDS domain and the link emulator
-    relays between it and the driver's with half of delay_ms each way; passivity turns it on
-    at both ends (the driver's master port, the bridge's slave port). `arm`: 'point-mass'
+    relays between it and the driver's with half of delay_ms each way; passivity turns on the
+    driver's master port, and the bridge's slave port with force_mode 'direct'. `arm`: 'point-mass'
     (kraft_master_slave_sim) or 'mujoco' (kraft_master_arm_sim, with the bridge it needs).
     force_mode: the driver's (direct, model or auto; doc/force-feedback.md).
     """
@@ -374,6 +385,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
             screen.show(log.new_lines(), ['the simulator did not start'])
             return 1
         passive = ['-p', f'passivity:={str(passivity).lower()}']
+        arm_passive = ['-p', f'passivity:={str(bridge_passivity(passivity, force_mode)).lower()}']
         mode = ['-p', f'force_mode:={force_mode}']
         # The wrench reaches the driver one way's delay after its stamp: admit that much more.
         wrench_age = ['-p', f'max_wrench_age:={MAX_WRENCH_AGE_S + delay_ms / 2e3}']
@@ -392,7 +404,7 @@ def teleoperate(duration, out=sys.stdout, delay_ms=0.0, passivity=False, arm='mu
                               *ros_parameters(MUJOCO_DRIVER if mujoco else {})],
                              stdout=log.file, **child),
             subprocess.Popen([*TELEOP, *ros_parameters(MUJOCO_BRIDGE if mujoco else BRIDGE),
-                              *passive],
+                              *arm_passive],
                              stdout=log.file, **arm_child),
             subprocess.Popen(MUJOCO_ARM if mujoco else ARM, stdout=log.file, **arm_child)]
         readout = Readout(bridge_domain, mujoco)
@@ -457,7 +469,8 @@ def main(argv=None):
                         help='round trip between the driver and the bridge through the link '
                              'emulator')
     parser.add_argument('--passivity', choices=('on', 'off'), default='off',
-                        help='time-domain passivity at both ends (default off)')
+                        help="time-domain passivity: the driver's, and the bridge's with "
+                             '--force-mode direct (default off)')
     parser.add_argument('--force-mode', choices=tuple(ForceMode), default='auto',
                         help="what the operator feels: 'direct', the arm's wrench; 'model', the "
                              "arm's contact model rendered by the driver; 'auto' (default), "
