@@ -101,14 +101,17 @@ class Child:
         """Ask it to stop; SIGKILL after STOP_S. Return the exit code, None if it was killed."""
         if self.process.poll() is not None:
             return self.process.returncode
-        if self.pipes:
-            self.process.stdin.close()
+        # The signal alone: closing stdin first also ends a process that reads it, and a
+        # signal that comes while its interpreter finalizes kills it (exit -2).
         self.process.send_signal(signum)
         try:
             return self.process.wait(STOP_S)
         except subprocess.TimeoutExpired:
             self.kill()
             return None
+        finally:
+            if self.pipes:
+                self.process.stdin.close()
 
     def close(self):
         """Close its log."""
