@@ -134,12 +134,13 @@ soak: $(DEVELOPMENT)
 
 # The whole session under faults at both ends (driver, bridge, MuJoCo Panda, the link emulator
 # between them, all recorded), then the recorded invariants checked: half an hour unless
-# `make teleop-soak DURATION=600` says otherwise; SEED= draws another schedule. Writes into
+# `make teleop-soak DURATION=600` says otherwise; SEED= draws another schedule; LINK=zenoh puts
+# a Zenoh link on each site (mutual TLS over 127.0.0.1) in the emulator's place. Writes into
 # build/teleop_soak/<time>/ the bag, the logs, faults.jsonl, summary.json and figure.png.
 teleop-soak: $(DEVELOPMENT)
 	$(VPY) scripts/teleop_soak.py \
 		--duration $(if $(filter command line,$(origin DURATION)),$(DURATION),1800) \
-		$(if $(SEED),--seed $(SEED))
+		$(if $(SEED),--seed $(SEED)) $(if $(LINK),--link $(LINK))
 
 clean:
 	rm -rf $(VENV) .venv-latest build install log .pytest_cache .hypothesis *.egg-info

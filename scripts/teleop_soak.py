@@ -5,12 +5,14 @@
 Session soak: driver, bridge, MuJoCo Panda and the link between them, under faults at both ends.
 
 The driver runs on the simulated master (its operator hand at a task: moves, touches of the
-table, holds), the bridge and the Panda on another DDS domain, the link emulator between them,
-and a recorder (the project's Recorder) on both; the operator enables the bridge and clutches
-now and then. On a schedule drawn from --seed and printed at the start, it injects faults on
-both ends (test/harness/soak_faults.py): the master's device and wrench input, the wrist
-sensor, the arm's controller (stalled, killed and restarted), the bridge (killed and
-restarted), the link (blackout, delay step, loss burst) and a clock's stamps. At the end every
+table, holds), the bridge and the Panda on another DDS domain, the link between them (--link:
+the link emulator, or a Zenoh link on each site paired with mutual TLS over 127.0.0.1), and a
+recorder (the project's Recorder) on both; the operator enables the bridge and clutches now
+and then. On a schedule drawn from --seed and printed at the start, it injects faults on both
+ends (test/harness/soak_faults.py): the master's device and wrench input, the wrist sensor,
+the arm's controller (stalled, killed and restarted), the bridge (killed and restarted), and
+with the emulator the link (blackout, delay step, loss burst) and a clock's stamps, with Zenoh
+a restart of either site's link (killed, started again after the fault). At the end every
 process is stopped and what was left behind is listed, the faults are written as JSON lines and
 the recorded session is checked by kraft_master_driver.tools.session_check. The summary (JSON
 and a table) has the faults by kind with their time to safe and to recovery (max and p99),
@@ -28,7 +30,8 @@ import time
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
-from harness.teleop_soak import Soak  # noqa: E402  (test/ on the path first)
+from harness.soak_site import LINKS  # noqa: E402  (test/ on the path first)
+from harness.teleop_soak import Soak  # noqa: E402
 import numpy as np  # noqa: E402
 
 RSS_SLOPE_LIMIT = 100.0  # KiB/min after warm-up: above it, a process's memory is not flat
@@ -69,7 +72,8 @@ def summarise(soak, seconds, violations, checked):
             'not_followed_again': sum(f is None for f in follow)}
     rss = soak.rss_slopes()
     return {
-        'seed': soak.seed, 'duration_s': soak.duration, 'seconds': round(seconds, 1),
+        'seed': soak.seed, 'duration_s': soak.duration, 'link': soak.link,
+        'seconds': round(seconds, 1),
         'faults_injected': len(soak.faults), 'kinds': len(by_kind), 'faults': by_kind,
         'violations': violations, 'checker': checked,
         'rss': rss, 'rss_not_flat': sorted(
@@ -111,8 +115,8 @@ def table(figures):
 
 def print_summary(figures):
     """Print the table and the verdicts."""
-    print(f'\nteleop soak: {figures["seconds"]:.0f} s, seed {figures["seed"]}, '
-          f'{figures["faults_injected"]} faults of {figures["kinds"]} kinds')
+    print(f'\nteleop soak: {figures["seconds"]:.0f} s, seed {figures["seed"]}, link '
+          f'{figures["link"]}, {figures["faults_injected"]} faults of {figures["kinds"]} kinds')
     print(table(figures))
     violations = figures['violations']
     print('invariant violations: ' + ('none' if violations == [] else
@@ -132,6 +136,9 @@ def main(argv=None):
     parser.add_argument('--duration', type=float, default=1800.0,
                         help='seconds of faults and operation (default 1800)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the schedule (default 0)')
+    parser.add_argument('--link', choices=LINKS, default='emulator',
+                        help='between the sites: the link emulator (default) or two Zenoh '
+                             'links with mutual TLS')
     parser.add_argument('--longest-fault', type=float, default=float('inf'),
                         help='cut every drawn fault duration to this (s)')
     parser.add_argument('--out', type=pathlib.Path,
@@ -146,7 +153,7 @@ def main(argv=None):
     figure = args.figure or out / 'figure.png'
     load = [round(v, 2) for v in os.getloadavg()]
     print(f'load average at the start: {load}; writing to {out}')
-    soak = Soak(out, args.seed, args.duration, args.longest_fault)
+    soak = Soak(out, args.seed, args.duration, args.longest_fault, args.link)
     seconds = soak.run()
     faults_path = out / 'faults.jsonl'
     soak.write_faults(faults_path)

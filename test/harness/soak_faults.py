@@ -11,6 +11,8 @@ started). `force_untrue`: whether the force the master feels is no longer the ar
 lasts (the wrist sensor's faults, a stalled or dead arm, a link down). Not counted as untrue:
 a stuck sensor reading, which looks like a true one and nothing on the path can tell apart
 (doc/safety.md says so), and a loss burst, through which the messages that come are true.
+`links`: the links between the sites it runs with (soak_site.LINKS): the link's own faults are
+the emulator's parameters, or a restart of one of the two Zenoh links.
 """
 import math
 import random
@@ -36,6 +38,7 @@ class Kind(NamedTuple):
     longest: float  # s
     inject: Callable  # (soak, duration, rng) -> (start, end)
     force_untrue: bool = False
+    links: tuple[str, ...] = ('emulator', 'zenoh')
 
 
 def hold(soak, seconds):
@@ -144,6 +147,27 @@ def clock_skew(soak, duration, rng):
                 {f'{direction}__stamp_offset': 0.0})
 
 
+def zenoh_restart(side):
+    """
+    Return the injection of a restart of `side`'s Zenoh link: SIGKILL, started again after.
+
+    SIGKILL, as a crash or the OOM killer ends it: no goodbye to the peer, no DDS teardown (the
+    shared memory it leaves is removed). Over, at the earliest, when it is started again: it
+    carries nothing before; the peers then find each other again on their own.
+    """
+    def inject(soak, duration, _rng):
+        link = soak.site.children[f'zenoh_{side}']
+        start = time.time()
+        link.kill()
+        hold(soak, duration)
+        end = time.time()
+        link.start()
+        return start, end
+    return inject
+
+
+EMULATOR = ('emulator',)
+ZENOH = ('zenoh',)
 KINDS = [
     Kind('master: device unplugged', 'master', 0.5, 3.0, device('unplugged')),
     Kind('master: 1 reply in 10 dropped', 'master', 1.0, 3.0, device('replies dropped')),
@@ -160,11 +184,20 @@ KINDS = [
     Kind('arm: controller stall', 'arm', 0.05, 2.0, arm_stall, True),
     Kind('arm: killed and restarted', 'arm', 0.0, 0.0, restart_arm, True),
     Kind('bridge: killed and restarted', 'arm', 0.0, 0.0, restart_bridge, True),
-    Kind('link: blackout', 'link', 0.1, 10.0, blackout, True),
-    Kind('link: delay step', 'link', 2.0, 8.0, delay_step),
-    Kind('link: loss burst', 'link', 1.0, 5.0, loss_burst),
-    Kind('clock: stamp skew', 'clock', 1.0, 5.0, clock_skew),
+    Kind('link: blackout', 'link', 0.1, 10.0, blackout, True, EMULATOR),
+    Kind('link: delay step', 'link', 2.0, 8.0, delay_step, links=EMULATOR),
+    Kind('link: loss burst', 'link', 1.0, 5.0, loss_burst, links=EMULATOR),
+    Kind('clock: stamp skew', 'clock', 1.0, 5.0, clock_skew, links=EMULATOR),
+    Kind("link: master's Zenoh link restarted", 'link', 1.0, 5.0, zenoh_restart('master'),
+         True, ZENOH),
+    Kind("link: arm's Zenoh link restarted", 'link', 1.0, 5.0, zenoh_restart('arm'), True,
+         ZENOH),
 ]
+
+
+def kinds(link):
+    """Return the kinds of fault that run with `link` (emulator or zenoh)."""
+    return [kind for kind in KINDS if link in kind.links]
 
 
 class Scheduled(NamedTuple):
@@ -175,22 +208,23 @@ class Scheduled(NamedTuple):
     duration: float
 
 
-def schedule(seed, duration, longest=math.inf):
+def schedule(seed, duration, longest=math.inf, link='emulator'):
     """
-    Return the faults of a run of `duration` s drawn with `seed`.
+    Return the faults of a run of `duration` s with `link` between the sites, drawn with `seed`.
 
-    Every kind once in a random order, again and again, at times spread evenly with random
-    jitter over the run, the first after 10 % of it; each lasts a duration drawn in its kind's
-    range, cut to `longest`. At least one of each kind.
+    Every kind that runs with the link once in a random order, again and again, at times spread
+    evenly with random jitter over the run, the first after 10 % of it; each lasts a duration
+    drawn in its kind's range, cut to `longest`. At least one of each kind.
     """
     rng = random.Random(seed)
-    rounds = max(1, round(duration / (20.0 * len(KINDS))))
-    kinds = []
+    drawn = kinds(link)
+    rounds = max(1, round(duration / (20.0 * len(drawn))))
+    order = []
     for _ in range(rounds):
-        kinds += rng.sample(KINDS, len(KINDS))
-    gap = 0.9 * duration / len(kinds)
+        order += rng.sample(drawn, len(drawn))
+    gap = 0.9 * duration / len(order)
     faults = []
-    for number, kind in enumerate(kinds):
+    for number, kind in enumerate(order):
         at = 0.1 * duration + gap * (number + rng.uniform(0.0, 0.5))
         seconds = rng.uniform(kind.shortest, min(kind.longest, max(kind.shortest, longest)))
         faults.append(Scheduled(round(at, 2), kind, round(seconds, 3)))

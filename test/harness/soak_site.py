@@ -5,25 +5,30 @@ The session soak's processes (scripts/teleop_soak.py): both sites, the link, the
 
 Master's site (one DDS domain): the simulated master (soak_master.py, the 'task' operator
 hand), the driver on it. Arm's site (another domain): the bridge and the MuJoCo Panda. Between
-them the link emulator relays pose and master_energy one way, wrench, slave_energy and
-contact_model the other. A recorder (soak_recorder.py) joins both. Every process runs as
+them a link (LINKS) carries pose and master_energy one way, wrench, slave_energy and
+contact_model the other: the link emulator (one process on the master's domain), or two Zenoh
+links (one on each domain) paired over TLS on 127.0.0.1, the arm's listening, with
+certificates made for the run in a temporary directory that stop() deletes (the Zenoh links
+carry clutch too: nothing publishes it on the master's domain). A recorder
+(soak_recorder.py) joins both. Every process runs as
 `python -m` of this checkout, in a session of its own, its output in a log file; each can be
 killed (SIGKILL, its shared memory removed) and started again. The Operator, nodes in this
 process, enables the bridge, clutches, and sets the fault switches that are parameters.
 Leftovers() says what the run left: processes of its sessions, the simulator's pty directory,
-Fast DDS shared memory.
+the certificates' directory, Fast DDS shared memory.
 """
 import glob
 import os
 import pathlib
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 
 from geometry_msgs.msg import PoseStamped
-from harness import dds_shm, REPO
+from harness import certificates, dds_shm, REPO
 from harness.demo import session_processes
 from harness.driver import ClientNode, next_domain_id, wait_for
 from kraft_master_driver.nodes.ros_io import take_newest
@@ -51,6 +56,19 @@ DRIVER = {**MUJOCO_DRIVER, 'force_enabled_at_start': 'true', 'passivity': 'true'
           'allow_multiple_wrench_sources': 'true'}
 RELAYS = {'to_slave.topics': '[pose, master_energy]',
           'to_master.topics': '[wrench, slave_energy, contact_model]'}
+LINKS = ('emulator', 'zenoh')
+LOCALHOST = '127.0.0.1'
+ZENOH_PAIR = 'kraft_master/soak'
+# The arm's Zenoh link disables the bridge after this long without a pose: half the bridge's
+# master_timeout, as the link's default is half the bridge's default (test_zenoh_link.py too).
+ZENOH_ARM = {'stream_timeout': BRIDGE['master_timeout'] / 2}
+
+
+def free_port():
+    """Return a TCP port of 127.0.0.1 that nothing listens on now."""
+    with socket.socket() as probe:
+        probe.bind((LOCALHOST, 0))
+        return probe.getsockname()[1]
 
 
 def rss_kib(pid):
@@ -121,9 +139,10 @@ class Child:
 class Site:
     """Every process of the session, started in order; stop() ends them all."""
 
-    def __init__(self, work, seed, operator_period=2.0):
+    def __init__(self, work, seed, operator_period=2.0, link='emulator'):
         """Start them, with logs and the bag in `work`; fail naming one that did not come up."""
-        self.work = work
+        assert link in LINKS, f'link {link!r} is not one of {", ".join(LINKS)}'
+        self.work, self.link = work, link
         self.master_domain, self.arm_domain = next_domain_id(), next_domain_id()
         base = dict(os.environ, PYTHONPATH=os.pathsep.join(
             filter(None, [str(REPO), str(REPO / 'test'), os.environ.get('PYTHONPATH')])),
@@ -132,8 +151,17 @@ class Site:
         self.env = {'master': dict(base, ROS_DOMAIN_ID=str(self.master_domain)),
                     'arm': dict(base, ROS_DOMAIN_ID=str(self.arm_domain))}
         self.children = {}
+        self.certificates = None
         self.watcher = dds_shm.Watcher()
         self.watcher.start()
+        try:
+            self._start(seed, operator_period)
+        except BaseException:
+            self.stop()
+            self.watcher.stop()
+            raise
+
+    def _start(self, seed, operator_period):
         master = self.add('master', [sys.executable, str(HARNESS / 'soak_master.py'),
                                      '--seed', str(seed), '--operator-period',
                                      str(operator_period)], 'master', pipes=True)
@@ -142,13 +170,16 @@ class Site:
         self.add('driver', [*PYTHON, 'kraft_master_driver.nodes.driver', '--ros-args',
                             '-p', f'port:={self.port}', *ros_parameters(DRIVER),
                             '-p', f'max_wrench_age:={0.1 + MAX_DELAY_S}'], 'master')
-        self.add('link', [*PYTHON, 'kraft_master_driver.nodes.link_emulator', '--ros-args',
-                          '-p', f'slave_domain_id:={self.arm_domain}', '-p', f'seed:={seed}',
-                          *ros_parameters(RELAYS)], 'master')
+        if self.link == 'emulator':
+            self.add('link', [*PYTHON, 'kraft_master_driver.nodes.link_emulator', '--ros-args',
+                              '-p', f'slave_domain_id:={self.arm_domain}', '-p', f'seed:={seed}',
+                              *ros_parameters(RELAYS)], 'master')
+        else:
+            self._start_zenoh()
         self.add('bridge', [*PYTHON, 'kraft_master_driver.nodes.teleop', '--ros-args',
                             *ros_parameters(BRIDGE)], 'arm')
         self.add('arm', [*PYTHON, 'kraft_master_driver.nodes.arm_sim'], 'arm')
-        self.bag = work / 'session'
+        self.bag = self.work / 'session'
         recorder = self.add('recorder', [sys.executable, str(HARNESS / 'soak_recorder.py'),
                                          '--bag', str(self.bag), '--master-domain',
                                          str(self.master_domain), '--arm-domain',
@@ -156,6 +187,20 @@ class Site:
         self.recorder_lines = []
         threading.Thread(target=self._read_recorder, args=(recorder.process,),
                          daemon=True).start()
+
+    def _start_zenoh(self):
+        """Make the certificates, start the arm's Zenoh link listening, the master's connecting."""
+        self.certificates = certificates.Sites(
+            {'master': f'IP:{LOCALHOST}', 'arm': f'IP:{LOCALHOST}'}).__enter__()
+        endpoint = f'tls/{LOCALHOST}:{free_port()}'
+        for side, end in (('arm', {'listen': endpoint}), ('master', {'connect': endpoint})):
+            parameters = dict(certificates.link_parameters(
+                self.certificates, side, 'arm' if side == 'master' else 'master',
+                pair=ZENOH_PAIR, **end))
+            if side == 'arm':
+                parameters.update(ZENOH_ARM)
+            self.add(f'zenoh_{side}', [*PYTHON, 'kraft_master_driver.nodes.zenoh_link',
+                                       '--ros-args', *ros_parameters(parameters)], side)
 
     def add(self, name, command, site, pipes=False):
         """Start a child process on `site` ('master' or 'arm')."""
@@ -201,15 +246,20 @@ class Site:
 
     def stop(self):
         """Stop every child (the recorder last, to keep the end); return {name: exit code}."""
-        order = ['master', 'driver', 'link', 'bridge', 'arm', 'recorder']
+        order = ['master', 'driver', 'link', 'zenoh_master', 'zenoh_arm', 'bridge', 'arm',
+                 'recorder']
         codes = {}
-        for name in order:
-            if name in self.children:
-                child = self.children[name]
-                if child.alive():
-                    child.pause(False)
-                codes[name] = child.stop(signal.SIGINT)
-                child.close()
+        try:
+            for name in order:
+                if name in self.children:
+                    child = self.children[name]
+                    if child.alive():
+                        child.pause(False)
+                    codes[name] = child.stop(signal.SIGINT)
+                    child.close()
+        finally:
+            if self.certificates is not None:
+                self.certificates.__exit__(None, None, None)
         return codes
 
     def leftovers(self):
@@ -227,6 +277,10 @@ class Site:
             if directory == os.path.dirname(self.port) or link.split('/')[2:3] in (
                     [str(pid)] for pid in ours):
                 found.append(f"the simulator's pty directory {directory} is still there")
+        if self.certificates is not None and os.path.exists(os.path.dirname(
+                self.certificates.ca)):
+            found.append(f"the certificates' directory {os.path.dirname(self.certificates.ca)} "
+                         'is still there')
         noted = self.watcher.stop()
         left = dds_shm.orphaned({group for group in noted if '_port' not in group})
         dds_shm.remove(left)
@@ -258,9 +312,10 @@ class Operator:
             depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.clutch_pub = node.create_publisher(Bool, 'clutch', reliable)
         self.enable_client = node.create_client(SetBool, 'enable')
-        self.parameters = {
-            'arm': AsyncParameterClient(node, '/kraft_master_arm_sim'),
-            'link': AsyncParameterClient(self.master_node.node, '/kraft_master_link_emulator')}
+        self.parameters = {'arm': AsyncParameterClient(node, '/kraft_master_arm_sim')}
+        if site.link == 'emulator':
+            self.parameters['link'] = AsyncParameterClient(self.master_node.node,
+                                                           '/kraft_master_link_emulator')
         # Not spun: the newest master pose is taken when asked (the demo's Readout does so).
         self._pose_node = rclpy.create_node('soak_operator_eyes', context=self.master_node.context)
         self._pose = self._pose_node.create_subscription(

@@ -36,13 +36,19 @@ def _interrupt(_signum, _frame):
     raise KeyboardInterrupt
 
 
+def _take_stop_signals():
+    """Have SIGINT and SIGTERM end the run through its `finally`, which stops every process."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, _interrupt)
+
+
 class Soak:
     """One run: the site, the operator, the schedule's faults and what was measured."""
 
-    def __init__(self, work, seed, duration, longest=float('inf')):
-        """Draw the schedule; nothing starts until run()."""
-        self.work, self.seed, self.duration = work, seed, duration
-        self.schedule, self.rng = schedule(seed, duration, longest)
+    def __init__(self, work, seed, duration, longest=float('inf'), link='emulator'):
+        """Draw the schedule for `link` between the sites; nothing starts until run()."""
+        self.work, self.seed, self.duration, self.link = work, seed, duration, link
+        self.schedule, self.rng = schedule(seed, duration, longest, link)
         self.site = self.operator = self._source = None
         self.faults = []  # dicts, as written to faults.jsonl
         self.notes = []  # what went wrong in the run itself
@@ -110,18 +116,17 @@ class Soak:
 
     def run(self):
         """Run the session and the schedule; return the seconds run. Always stops everything."""
-        print(f'seed {self.seed}, {self.duration:g} s, {len(self.schedule)} faults:')
+        print(f'seed {self.seed}, {self.duration:g} s, link {self.link}, '
+              f'{len(self.schedule)} faults:')
         for fault in self.schedule:
             print(f'  {fault.at:8.2f} s  {fault.kind.name} ({fault.duration:g} s)')
         try:
-            self.site = Site(self.work, self.seed)
+            _take_stop_signals()  # a Site that fails to start stops what it started
+            self.site = Site(self.work, self.seed, link=self.link)
             self.started = time.monotonic()
             self.site.wait_recording()
             self.operator = Operator(self.site)
-            # rclpy.init took SIGINT and SIGTERM for its contexts: Ctrl-C must end the run,
-            # through the `finally` that stops every process.
-            for signum in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(signum, _interrupt)
+            _take_stop_signals()  # rclpy.init took them for its contexts
             assert self.follow(START_S) is not None, (
                 f'the bridge never followed: {self.operator.state!r}; see {self.work}')
             self.started = time.monotonic()

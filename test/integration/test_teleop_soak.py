@@ -1,35 +1,59 @@
 # Copyright 2026 kraft_master_driver contributors
 # Licensed under the Apache License, Version 2.0
-"""The session soak for 60 s (scripts/teleop_soak.py): one fault of each kind, then the checks."""
+"""
+The session soak for 60 s (scripts/teleop_soak.py): one fault of each kind, then the checks.
+
+Once with each link between the sites: the link emulator, and a Zenoh link on each site.
+"""
 import json
 import subprocess
 import sys
 
 from harness import REPO
-from harness.soak_faults import KINDS
+from harness.soak_faults import kinds
+from harness.soak_site import LINKS
 import pytest
 
 pytestmark = [pytest.mark.integration, pytest.mark.faults]
 
 SCRIPT = REPO / 'scripts' / 'teleop_soak.py'
+TIMEOUT_S = 1800.0
+STOP_S = 300.0  # for the soak to stop its processes after SIGTERM (30 s each at most)
 
 
-@pytest.fixture(scope='module')
-def soak(tmp_path_factory):
+def run(command):
+    """Run `command`; return (exit code, output). If it is cut short, SIGTERM it first."""
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                               text=True)
+    try:
+        output, _ = process.communicate(timeout=TIMEOUT_S)
+    except BaseException:
+        # The soak stops every process it started and deletes its certificates at SIGTERM.
+        process.terminate()
+        try:
+            process.communicate(timeout=STOP_S)
+        finally:
+            process.kill()
+        raise
+    return process.returncode, output
+
+
+@pytest.fixture(scope='module', params=LINKS)
+def soak(request, tmp_path_factory):
     """Run the soak 60 s, every fault cut to 1 s at most; return (exit code, output, summary)."""
-    out = tmp_path_factory.mktemp('teleop_soak')
-    result = subprocess.run(
-        [sys.executable, str(SCRIPT), '--duration', '60', '--longest-fault', '1', '--seed', '3',
-         '--out', str(out)], capture_output=True, text=True, timeout=1800)
-    output = result.stdout + result.stderr
+    out = tmp_path_factory.mktemp(f'teleop_soak_{request.param}')
+    code, output = run([sys.executable, str(SCRIPT), '--duration', '60', '--longest-fault', '1',
+                        '--seed', '3', '--link', request.param, '--out', str(out)])
     summary_path = out / 'summary.json'
     assert summary_path.exists(), output
-    return result.returncode, output, json.loads(summary_path.read_text())
+    summary = json.loads(summary_path.read_text())
+    assert summary['link'] == request.param
+    return code, output, summary
 
 
 def test_every_kind_of_fault_is_injected_and_followed_by_teleoperation(soak):
     _, output, summary = soak
-    assert set(summary['faults']) == {kind.name for kind in KINDS}, output
+    assert set(summary['faults']) == {kind.name for kind in kinds(summary['link'])}, output
     assert summary['notes'] == [], output  # each time, the bridge followed the master again
 
 
