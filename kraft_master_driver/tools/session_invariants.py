@@ -104,6 +104,30 @@ def _near_measured(position: np.ndarray, time: float, measured: Optional[Series]
     return float(np.min(np.linalg.norm(near - position, axis=1))) <= limits.hold_tolerance
 
 
+def _measured_next(command: Series, index: int, measured: Optional[Series],
+                   limits: Limits) -> bool:
+    """
+    Return whether the arm, not recorded near the step to command[index], was there after it.
+
+    A restarted arm may reach the recorder later than the bridge, which registered where the
+    arm is: the arm's first pose recorded after the step must be within hold_tolerance of the
+    step's target, less the path the command took since. An arm recorded just before the step
+    is judged by _near_measured alone.
+    """
+    if measured is None or not len(measured):
+        return False
+    time = float(command.t[index])
+    after = int(np.searchsorted(measured.t, time))
+    if after == len(measured) or (after and time - measured.t[after - 1] <= limits.state_grace):
+        return False
+    until = int(np.searchsorted(command.t, measured.t[after], side='right'))
+    path = float(np.sum(np.linalg.norm(np.diff(command.values[index:until, :3], axis=0),
+                                       axis=1)))
+    target = command.values[index, :3]
+    return float(np.linalg.norm(measured.values[after, :3] - target)) <= (
+        limits.hold_tolerance + path)
+
+
 def _angles(quaternions: np.ndarray) -> np.ndarray:
     """Return the angle (rad) between consecutive unit quaternions (N, 4) x y z w."""
     unit = quaternions / np.linalg.norm(quaternions, axis=1, keepdims=True)
@@ -118,7 +142,7 @@ def command_steps(command: Series, measured: Optional[Series], limits: Limits
 
     The limit is max_linear_speed (max_angular_speed) times max_step_s, the largest step the
     bridge lets its target take between two master poses. A hold where the arm is measured
-    (a fault, an enable) is no motion of the arm and passes.
+    (a fault, an enable, a restarted arm recorded late) is no motion of the arm and passes.
     """
     linear = limits.max_linear_speed * limits.max_step_s
     angular = limits.max_angular_speed * limits.max_step_s
@@ -129,7 +153,8 @@ def command_steps(command: Series, measured: Optional[Series], limits: Limits
     for index in np.flatnonzero((steps > linear * (1 + 1e-9)) |
                                 (turns > angular * (1 + 1e-9))).tolist():
         time = float(command.t[index + 1])
-        if _near_measured(position[index + 1], time, measured, limits):
+        if (_near_measured(position[index + 1], time, measured, limits)
+                or _measured_next(command, index + 1, measured, limits)):
             continue
         found.append(Violation(
             time, command.topic,

@@ -5,8 +5,8 @@ import dataclasses
 import json
 
 from harness.crafted_session import (
-    BREAKS, ENABLE_AT, FAULT_AT, JUMP_AT, LOST_AT, NS, session_messages, state, STRING, T0,
-    TYPES, write_session)
+    BREAKS, ENABLE_AT, FAULT_AT, JUMP_AT, LOST_AT, NS, pose, session_messages, state, STRING,
+    T0, TYPES, write_session)
 from kraft_master_driver.bag.common import SessionError, TWIST_STAMPED
 from kraft_master_driver.tools import report
 from kraft_master_driver.tools.session_check import check_session, read_faults
@@ -63,6 +63,29 @@ def test_a_hold_at_the_measured_arm_is_no_jump_but_the_same_step_elsewhere_is(tm
     lines = check_session(tmp_path / 'far').violations
     assert len(lines) == 1 and 'stepped 20.00 mm' in lines[0], lines
     assert abs(float(lines[0].split()[0]) - FAULT_AT) < 0.01
+
+
+def test_a_step_to_where_the_arm_is_recorded_only_later_is_no_jump(tmp_path):
+    # A restarted arm reaches the recorder after the bridge, which registered where it is:
+    # no arm pose is recorded for a second around the FAULT's 20 mm step, then the arm is
+    # recorded where the command went.
+    gap = [m for m in session_messages()
+           if not (m[0].endswith('measured_cp') and FAULT_AT - 0.5 <= m[2] < FAULT_AT + 0.5)]
+    write_session(tmp_path / 'bag', messages=gap)
+    assert check_session(tmp_path / 'bag').violations == []
+    # Recorded later 30 mm from where the command went, and held still: a jump.
+    elsewhere = [(topic, kind, at, moved(message, 0.03) if topic.endswith('measured_cp')
+                  else message) for topic, kind, at, message in gap]
+    write_session(tmp_path / 'elsewhere', messages=elsewhere)
+    lines = check_session(tmp_path / 'elsewhere').violations
+    assert any('stepped 20.00 mm' in line for line in lines), lines
+
+
+def moved(message, dz):
+    """Return a copy of PoseStamped `message`, its position `dz` (m) higher."""
+    position = message.pose.position
+    stamp = message.header.stamp
+    return pose(stamp.sec + stamp.nanosec * 1e-9, (position.x, position.y, position.z + dz))
 
 
 def test_the_limits_come_from_the_settings_and_unknown_settings_are_refused(tmp_path):
