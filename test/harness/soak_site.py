@@ -44,6 +44,7 @@ HARNESS = pathlib.Path(__file__).resolve().parent
 PYTHON = [sys.executable, '-m']
 START_S = 120.0  # a start-up on a loaded machine
 STOP_S = 30.0  # a node's own guard ends a stuck shutdown in 10 s
+UNANSWERED_S = 5.0  # an enable request the bridge has not answered went to a killed bridge
 MAX_DELAY_S = 0.5  # the largest one-way delay step: the driver admits wrenches that old
 # The bridge as the demo runs it on the Panda (2 s timeouts for a loaded machine), passivity on,
 # its box 5 cm taller: a stale pose that comes back registers the master wherever the hand is,
@@ -323,6 +324,7 @@ class Operator:
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self._master_z = None
         self._pending = None
+        self._asked = 0.0  # time.monotonic() of the pending request
         self._stopping = threading.Event()
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -352,10 +354,21 @@ class Operator:
         return self.state == 'ENABLED'
 
     def enable(self):
-        """Ask the bridge to enable unless an earlier request is still unanswered."""
-        if self._pending is None or self._pending.done():
+        """
+        Ask the bridge to enable unless an earlier request is still waiting for its answer.
+
+        A request unanswered for UNANSWERED_S is given up: the bridge it reached was killed
+        (discovery still listed its service when the new bridge's was not yet matched), and
+        it would never be answered; an operator would press enable again.
+        """
+        with self._lock:
+            if self._pending is not None and not self._pending.done():
+                if time.monotonic() - self._asked < UNANSWERED_S:
+                    return
+                self.enable_client.remove_pending_request(self._pending)
             if self.enable_client.service_is_ready():
                 self._pending = self.enable_client.call_async(SetBool.Request(data=True))
+                self._asked = time.monotonic()
 
     def clutch(self, pressed):
         """Press or release the clutch."""
