@@ -95,7 +95,9 @@ def read_faults(path: str | os.PathLike[str]) -> list[Fault]:
 def _series(data: Optional[TopicData], *fields: str) -> Optional[Series]:
     if data is None or not len(data):
         return None
-    return Series(data.topic, data.log_time / 1e9, np.hstack([data.fields[f] for f in fields]))
+    stamp = data.fields.get('stamp')
+    return Series(data.topic, data.log_time / 1e9, np.hstack([data.fields[f] for f in fields]),
+                  None if stamp is None else stamp / 1e9)
 
 
 class _Pair:

@@ -12,14 +12,19 @@ from typing import Callable, NamedTuple, Optional
 import numpy as np
 
 HOLD_EXACT = 1e-9  # m: a held command is re-sent unchanged; farther is a move
+# s: a command stamped before a hold began and received up to this much later was sent before
+# it (the soak's recorder took one 2.6 s late on a loaded machine); a stamp older than this, or
+# unset, may be another clock's, and the receive time counts.
+LATE_RECEIPT_S = 10.0
 
 
 class Series(NamedTuple):
-    """One topic's messages: receive times (N,) in s and values (N, k)."""
+    """One topic's messages: receive times (N,) in s, values (N, k), header stamps (N,) in s."""
 
     topic: str
     t: np.ndarray
     values: np.ndarray
+    stamp: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         """Return the number of messages."""
@@ -177,6 +182,18 @@ def twist_limits(twist: Series, limits: Limits) -> list[Violation]:
             for i in over.tolist()]
 
 
+def _sent_before(series: Series, time: float) -> np.ndarray:
+    """
+    Return which messages were stamped before `time` and received at most LATE_RECEIPT_S after.
+
+    A message the recorder received late (a reliable topic's repair, a recorder behind) was
+    sent when its stamp says, on the sender's clock, where that clock is the recorder's.
+    """
+    if series.stamp is None:
+        return np.zeros(len(series), bool)
+    return (series.stamp < time) & (series.t - series.stamp <= LATE_RECEIPT_S)
+
+
 def holds(periods: list[Period], command: Series, twist: bool, limits: Limits
           ) -> list[Violation]:
     """
@@ -191,7 +208,8 @@ def holds(periods: list[Period], command: Series, twist: bool, limits: Limits
         if period.state not in ('FAULT', 'DISABLED'):
             continue
         rows = np.flatnonzero((command.t >= period.start + limits.state_grace) &
-                              (command.t < period.end - limits.state_grace))
+                              (command.t < period.end - limits.state_grace) &
+                              ~_sent_before(command, period.start))
         if not rows.size:
             continue
         why = f'{period.state}' + (f' ({period.reason})' if period.reason else '')

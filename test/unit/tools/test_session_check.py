@@ -7,7 +7,7 @@ import json
 from harness.crafted_session import (
     BREAKS, ENABLE_AT, FAULT_AT, JUMP_AT, LOST_AT, NS, pose, session_messages, state, STRING,
     T0, TYPES, write_session)
-from kraft_master_driver.bag.common import SessionError, TWIST_STAMPED
+from kraft_master_driver.bag.common import POSE_STAMPED, SessionError, TWIST_STAMPED
 from kraft_master_driver.tools import report
 from kraft_master_driver.tools.session_check import check_session, read_faults
 from kraft_master_driver.tools.session_invariants import frames_lost, Limits
@@ -79,6 +79,24 @@ def test_a_step_to_where_the_arm_is_recorded_only_later_is_no_jump(tmp_path):
     write_session(tmp_path / 'elsewhere', messages=elsewhere)
     lines = check_session(tmp_path / 'elsewhere').violations
     assert any('stepped 20.00 mm' in line for line in lines), lines
+
+
+@pytest.mark.parametrize('stamped_before, found', [(True, False), (False, True)])
+def test_a_command_received_late_in_a_fault_counts_when_it_was_stamped(
+        tmp_path, stamped_before, found):
+    # A command 5 mm from the hold, received 0.5 s into the FAULT: sent before it (its stamp
+    # 0.1 s before the FAULT, a recorder behind) it moved nothing in the FAULT; stamped in it,
+    # it is a move.
+    messages = session_messages()
+    held = next(message.pose.position for topic, _, at, message in messages
+                if topic.endswith('servo_cp') and at > FAULT_AT)
+    stamp = FAULT_AT - 0.1 if stamped_before else FAULT_AT + 0.5
+    late = (f'{NS}/servo_cp', POSE_STAMPED, FAULT_AT + 0.5,
+            pose(stamp, (held.x, held.y + 0.005, held.z)))
+    write_session(tmp_path / 'bag', messages=messages + [late])
+    lines = check_session(tmp_path / 'bag').violations
+    assert bool(lines) == found, lines
+    assert all('commanded in FAULT' in line for line in lines), lines
 
 
 def moved(message, dz):
