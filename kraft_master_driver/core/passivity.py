@@ -51,8 +51,15 @@ class PortEnergy:
     """
     The energy bookkeeping of one port: in, out, dissipated, and the other end's credit.
 
-    energy_in and energy_out only grow; remote_in is the largest energy_in received from the
-    other end, so a lost, late or reordered sample only delays credit.
+    energy_in and energy_out only grow; remote_in is the credit: the largest energy_in
+    received from the other end, so a lost, late or reordered sample only delays credit.
+
+    Given the samples' stamps, the credit follows the other end's process. Its books are
+    taken from its first sample on: what it had in before was credit for another peer. A
+    smaller energy_in stamped later than the newest taken is the other end started again
+    (its books start from zero), taken from there on in the same way. At such a start this
+    port's unspent credit is dropped and a deficit kept; a sample stamped before it is
+    ignored (a late one of the process before).
     """
 
     def __init__(self) -> None:
@@ -62,11 +69,31 @@ class PortEnergy:
         self.dissipated = 0.0
         self.remote_in = 0.0
         self.enabled = True
+        self._remote_start_ns: int | None = None  # the stamp of the other end's first sample
+        self._newest_ns = 0
+        self._remote_largest = 0.0  # the largest energy_in of the other end since its start
+        self._remote_offset = 0.0  # remote_in less _remote_largest
 
-    def credit(self, remote_energy_in: float) -> None:
-        """Take the other end's energy_in (J); a smaller or non-finite value is ignored."""
-        if math.isfinite(remote_energy_in) and remote_energy_in > self.remote_in:
-            self.remote_in = remote_energy_in
+    def credit(self, remote_energy_in: float, stamp_ns: int | None = None) -> None:
+        """
+        Take the other end's energy_in (J), stamped `stamp_ns` by its clock (None: unknown).
+
+        A non-finite value is ignored, and so is a smaller one but where the stamp shows
+        the other end started again.
+        """
+        if not math.isfinite(remote_energy_in):
+            return
+        if stamp_ns is not None:
+            if self._remote_start_ns is None or (
+                    stamp_ns > self._newest_ns and remote_energy_in < self._remote_largest):
+                self._remote_start_ns = stamp_ns
+                self._remote_largest = remote_energy_in
+                self._remote_offset = self.energy_out + min(self.observed, 0.0) - remote_energy_in
+            elif stamp_ns < self._remote_start_ns:
+                return
+            self._newest_ns = max(self._newest_ns, stamp_ns)
+        self._remote_largest = max(self._remote_largest, remote_energy_in)
+        self.remote_in = self._remote_offset + self._remote_largest
 
     @property
     def observed(self) -> float:

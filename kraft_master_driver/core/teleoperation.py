@@ -335,9 +335,9 @@ class Teleoperation:
                 self.arm[0].position, self.contact_wrench()[:3], command, now)
         return self._outputs(wrench=self.master_wrench(now))
 
-    def master_energy(self, energy_in: float) -> None:
-        """Take the master port's energy in (J): the slave port's credit; nothing to send."""
-        self.port.credit(energy_in)
+    def master_energy(self, energy_in: float, stamp_ns: Optional[int] = None) -> None:
+        """Take the master port's energy in (J), stamped `stamp_ns`: the slave port's credit."""
+        self.port.credit(energy_in, stamp_ns)
 
     def tare(self, now: float) -> Optional[str]:
         """Take the current reading, less the tool's weight, as the bias; None or why not."""

@@ -212,7 +212,7 @@ class InputTopics:
         except ValueError as error:
             self.log.warning(f'slave_energy ignored: {error}', throttle_duration_sec=1.0)
             return
-        self.master_port.credit(energies[0])
+        self.master_port.credit(energies[0], sec * 1_000_000_000 + nanosec)
         self.slave_energy = tuple(energies)
         self.slave_link.add(sec * 1_000_000_000 + nanosec, received_ns)
 

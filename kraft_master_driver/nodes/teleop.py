@@ -212,7 +212,8 @@ class TeleopNode(Node):
         self._send(self.bridge.master_pose(frame_id, values[:3], values[3:], time.monotonic()))
 
     def _on_master_energy(self, data, _received_ns):
-        self.bridge.master_energy(VECTOR3_STAMPED.decode(data)[3][0])
+        sec, nanosec, _, energies = VECTOR3_STAMPED.decode(data)
+        self.bridge.master_energy(energies[0], sec * 1_000_000_000 + nanosec)
 
     def _on_measured_cp(self, data, _received_ns):
         _, _, frame_id, values = POSE_STAMPED.decode(data)

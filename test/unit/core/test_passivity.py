@@ -58,6 +58,49 @@ def test_credit_is_monotone_and_ignores_bad_values():
     assert port.remote_in == 2.0
 
 
+def test_stamped_credit_starts_with_the_other_ends_first_sample():
+    # A bridge started beside a driver that has run a while: the driver's energy in so far
+    # was credit for the bridge before, not for this one.
+    port = SlavePort()
+    port.credit(5.0, stamp_ns=1_000)
+    assert port.observed == 0.0
+    port.credit(5.2, stamp_ns=2_000)
+    assert port.observed == pytest.approx(0.2)
+
+
+def test_a_restarted_other_end_gives_credit_again_from_where_its_books_start():
+    port = MasterPort()
+    port.credit(0.0, stamp_ns=1_000)
+    port.credit(1.0, stamp_ns=2_000)
+    port.energy_out = 0.4  # spent
+    port.credit(0.5, stamp_ns=1_500)  # late, reordered: not a restart
+    assert port.observed == pytest.approx(0.6)
+    # The other end restarted: its energy in starts from zero again, stamped later.
+    port.credit(0.0, stamp_ns=3_000)
+    assert port.observed == 0.0, 'the unspent credit of the process before is dropped'
+    port.credit(0.01, stamp_ns=4_000)
+    assert port.observed == pytest.approx(0.01)
+    port.credit(1.0, stamp_ns=2_500)  # late, from the process before the restart
+    assert port.observed == pytest.approx(0.01)
+    # Unstamped, a smaller value is only ever a late one: no credit until past the largest.
+    unstamped = MasterPort()
+    unstamped.credit(1.0)
+    unstamped.energy_out = 0.4
+    unstamped.credit(0.01)
+    assert unstamped.observed == pytest.approx(0.6)
+
+
+def test_a_deficit_is_kept_across_a_restart_of_the_other_end():
+    port = MasterPort()
+    port.credit(0.001, stamp_ns=1)
+    port.credit(0.002, stamp_ns=2)
+    port.energy_out = 0.003  # 2 mJ past the credit (the reserve paid for it)
+    port.credit(0.0, stamp_ns=3)
+    assert port.observed == pytest.approx(-0.002)
+    port.credit(0.005, stamp_ns=4)
+    assert port.observed == pytest.approx(0.003)
+
+
 def test_master_controller_dissipates_exactly_the_excess():
     port = MasterPort()
     port.credit(0.001)
