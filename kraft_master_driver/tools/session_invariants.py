@@ -9,6 +9,7 @@ receive time of the message at fault, seconds of the bag's clock) and its topic.
 """
 from typing import Callable, NamedTuple, Optional
 
+from kraft_master_driver.core.passivity import PortEnergy
 import numpy as np
 
 HOLD_EXACT = 1e-9  # m: a held command is re-sent unchanged; farther is a move
@@ -324,17 +325,32 @@ def frames_lost(stamps: np.ndarray, counts: list[tuple[float, int, int]], topic:
     return found, lost + rise()
 
 
+def _booked_credit(own: Series, credit: Series) -> np.ndarray:
+    """Return the credit (J) after each of credit's messages, booked by a PortEnergy."""
+    books = PortEnergy()
+    spent = np.searchsorted(own.t, credit.t, side='right') - 1
+    booked = np.empty(len(credit))
+    stamps = [None] * len(credit) if credit.stamp is None else np.round(credit.stamp * 1e9)
+    for row, (value, stamp, last) in enumerate(zip(credit.values[:, 0].tolist(), stamps,
+                                                   spent.tolist())):
+        books.energy_out = float(own.values[last, 1]) if last >= 0 else 0.0
+        books.credit(value, None if stamp is None else int(stamp))
+        booked[row] = books.remote_in
+    return booked
+
+
 def energy_generated(own: Series, credit: Series, passivity: np.ndarray, port: str,
                      limits: Limits) -> tuple[list[Violation], float]:
     """
     Check that a port never hands out more energy than the other end's credit, passivity on.
 
     own: this port's energy in, out, dissipated (J); credit: the other port's, whose energy
-    in (the largest received, up to energy_grace after) is this port's credit; passivity (N,) bool:
-    whether it was on at each of own's messages. Return the violations and the largest
-    excess (J) while on.
+    in, booked as the port books it (core/passivity.py: by their stamps, from the other end's
+    first message and anew at its restart), up to energy_grace after, is this port's credit;
+    passivity (N,) bool: whether it was on at each of own's messages. Return the violations and
+    the largest excess (J) while on.
     """
-    credit_in = np.maximum.accumulate(np.nan_to_num(credit.values[:, 0], nan=0.0))
+    credit_in = _booked_credit(own, credit)
     index = np.searchsorted(credit.t, own.t + limits.energy_grace, side='right') - 1
     known = np.where(index >= 0, credit_in[np.maximum(index, 0)], 0.0)
     excess = np.where(passivity, own.values[:, 1] - known, -np.inf)

@@ -5,8 +5,8 @@ import dataclasses
 import json
 
 from harness.crafted_session import (
-    BREAKS, ENABLE_AT, FAULT_AT, JUMP_AT, LOST_AT, NS, pose, session_messages, state, STRING,
-    T0, TYPES, write_session)
+    BREAKS, ENABLE_AT, energy, FAULT_AT, JUMP_AT, LOST_AT, NS, pose, session_messages, state,
+    STRING, T0, TYPES, write_session)
 from kraft_master_driver.bag.common import POSE_STAMPED, SessionError, TWIST_STAMPED
 from kraft_master_driver.tools import report
 from kraft_master_driver.tools.session_check import check_session, read_faults
@@ -97,6 +97,34 @@ def test_a_command_received_late_in_a_fault_counts_when_it_was_stamped(
     lines = check_session(tmp_path / 'bag').violations
     assert bool(lines) == found, lines
     assert all('commanded in FAULT' in line for line in lines), lines
+
+
+@pytest.mark.parametrize('spends_old_credit, found', [(False, False), (True, True)])
+def test_the_energy_books_start_anew_when_the_other_end_restarts(
+        tmp_path, spends_old_credit, found):
+    # The bridge restarts at T0 + 2 s: its energy in starts from zero again, and the master
+    # port spends the new bridge's credit on top of what it spent before (beyond the first
+    # bridge's largest energy in). Spending the first bridge's unspent credit (80 mJ) after
+    # the restart generates energy.
+    restart = T0 + 2.0
+    messages = session_messages()
+    before = max(m.vector.x for topic, _, at, m in messages
+                 if topic.endswith('slave_energy') and at < restart)
+    rebooked = []
+    for topic, kind, at, message in messages:
+        stamp = message.header.stamp.sec + message.header.stamp.nanosec * 1e-9 \
+            if topic.endswith('energy') else None
+        if topic.endswith('slave_energy') and at >= restart:
+            x = message.vector.x - before
+            message = energy(stamp, (x, 0.5 * x, 0.0))
+        elif topic.endswith('master_energy') and at >= restart + 0.5 and spends_old_credit:
+            vector = message.vector
+            message = energy(stamp, (vector.x, vector.y + 0.05, vector.z))
+        rebooked.append((topic, kind, at, message))
+    write_session(tmp_path / 'bag', messages=rebooked)
+    lines = check_session(tmp_path / 'bag').violations
+    assert bool(lines) == found, lines
+    assert all('master port handed out' in line for line in lines), lines
 
 
 def moved(message, dz):
