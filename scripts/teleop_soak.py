@@ -35,6 +35,10 @@ from harness.teleop_soak import Soak  # noqa: E402
 import numpy as np  # noqa: E402
 
 RSS_SLOPE_LIMIT = 100.0  # KiB/min after warm-up: above it, a process's memory is not flat
+PRESS_N = 5.0  # N: the bridge's wrench at least this, for PRESS_S or more, is a press
+PRESS_S = 0.5
+NUMB_NM = 0.05  # N*m: a press whose master torque stays below this 90 % of the time is numb
+FAULT_MARGIN_S = 1.0  # s around a fault: a press there may be numb by the rules
 
 
 def check(soak, bag):
@@ -47,14 +51,45 @@ def check(soak, bag):
     return result.violations, result.summary
 
 
+def numb_presses(bag, faults):
+    """
+    Return (presses, the receive times of those not felt) away from the faults.
+
+    A press: the wrench the bridge sends at PRESS_N or more for PRESS_S or more. Felt: the
+    master's largest joint torque at NUMB_NM or more for over a tenth of it.
+    """
+    from kraft_master_driver.bag.reader import read_topics
+    data = read_topics(bag, ['/wrench', '/joint_states'])
+    if '/wrench' not in data or '/joint_states' not in data:
+        return 0, []
+    wrench, effort = data['/wrench'], data['/joint_states']
+    t = wrench.log_time / 1e9
+    pressing = np.linalg.norm(wrench.fields['force'], axis=1) >= PRESS_N
+    edges = np.flatnonzero(np.diff(np.r_[0, pressing.astype(int), 0]))
+    torque_t = effort.log_time / 1e9
+    torque = np.max(np.abs(effort.fields['effort']), axis=1, initial=0.0)
+    presses, numb = 0, []
+    for first, after in zip(edges[::2], edges[1::2]):
+        start, end = t[first], t[after - 1]
+        if end - start < PRESS_S or any(
+                start < f['end'] + FAULT_MARGIN_S and end > f['start'] - FAULT_MARGIN_S
+                for f in faults):
+            continue
+        presses += 1
+        felt = torque[(torque_t >= start) & (torque_t <= end)]
+        if not felt.size or np.mean(felt >= NUMB_NM) <= 0.1:
+            numb.append(round(float(start), 3))
+    return presses, numb
+
+
 def percentile_ms(values, q):
     """Return the q-th percentile of `values` (s) in ms, None if there are none."""
     known = [1e3 * v for v in values if v is not None]
     return round(float(np.percentile(known, q)), 1) if known else None
 
 
-def summarise(soak, seconds, violations, checked):
-    """Return the run's figures as a JSON-able dict."""
+def summarise(soak, seconds, violations, checked, presses):
+    """Return the run's figures as a JSON-able dict; presses: numb_presses()'s."""
     kinds = {}
     for entry in soak.faults:
         kinds.setdefault(entry['kind'], []).append(entry)
@@ -76,6 +111,7 @@ def summarise(soak, seconds, violations, checked):
         'seconds': round(seconds, 1),
         'faults_injected': len(soak.faults), 'kinds': len(by_kind), 'faults': by_kind,
         'violations': violations, 'checker': checked,
+        'presses_away_from_faults': presses[0], 'numb_presses': presses[1],
         'rss': rss, 'rss_not_flat': sorted(
             f'{name} (pid {run["pid"]}): {run["slope_kib_per_min"]} KiB/min'
             for name, runs in rss.items() for run in runs
@@ -89,9 +125,9 @@ def summarise(soak, seconds, violations, checked):
 
 
 def passed(figures):
-    """Return whether the run passed: no violation, nothing left, memory flat, all followed."""
+    """Return whether it passed: no violation, nothing left, memory flat, followed and felt."""
     return (figures['violations'] == [] and not figures['leftovers'] and not figures['notes']
-            and not figures['rss_not_flat'])
+            and not figures['rss_not_flat'] and not figures['numb_presses'])
 
 
 def cell(figure):
@@ -124,6 +160,9 @@ def print_summary(figures):
                                       f'{len(violations)}'))
     for line in (violations or [])[:50]:
         print(f'  {line}')
+    numb = figures['numb_presses']
+    print(f'presses away from faults: {figures["presses_away_from_faults"]}, not felt: '
+          + (', '.join(f'{t:.3f}' for t in numb) if numb else 'none'))
     for key in ('leftovers', 'notes', 'rss_not_flat'):
         print(f'{key}: ' + ('none' if not figures[key] else '; '.join(figures[key])))
     print(f'exit codes at SIGINT: {figures["exit_codes"]}')
@@ -158,7 +197,8 @@ def main(argv=None):
     faults_path = out / 'faults.jsonl'
     soak.write_faults(faults_path)
     violations, checked = check(soak, soak.site.bag)
-    figures = summarise(soak, seconds, violations, checked)
+    presses = numb_presses(soak.site.bag, soak.faults)
+    figures = summarise(soak, seconds, violations, checked, presses)
     (out / 'summary.json').write_text(json.dumps(figures, indent=2, default=str))
     (out / 'table.md').write_text(table(figures) + '\n')
     print_summary(figures)

@@ -96,9 +96,14 @@ def arm_stall(soak, duration, _rng):
 
 
 def restart_arm(soak, _duration, _rng):
-    """SIGKILL the arm's process and start it again: over once it publishes its pose."""
+    """
+    SIGKILL the arm's process and start it again: over when it publishes its pose.
+
+    The end is that pose's stamp, not when the soak received it: the bridge may take it and
+    follow again (with force) seconds before the soak's operator hears of it.
+    """
     start = soak.site.restart('arm', lambda killed: soak.operator.arm_stamp > killed)
-    return start, time.time()
+    return start, soak.operator.arm_stamp
 
 
 def restart_bridge(soak, _duration, _rng):
