@@ -16,6 +16,7 @@ one file:
 - InputWaitSet: a wait on a given set of subscriptions alone, with a timeout;
 - run_paced() and PacedThread: cycles on core.pacing.Pacer's grid, with its rule for a late
   cycle (run at once, skip the whole periods missed, never a burst);
+- RepeatedRequest: a service request asked again while its answer does not come;
 - steady_timer(), GIL_SWITCH_INTERVAL_S, and RCLError.
 
 Private rclpy is used here and nowhere else in the package, only where no public API does the
@@ -35,6 +36,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from kraft_master_driver.core.pacing import Pacer
 from rclpy.callback_groups import CallbackGroup
+from rclpy.client import Client
 from rclpy.clock import Clock
 from rclpy.clock_type import ClockType
 from rclpy.context import Context
@@ -43,6 +45,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
+from rclpy.task import Future
 from rclpy.timer import Timer
 
 # The interpreter's switch interval (s) for processes with a paced thread: that thread must
@@ -62,6 +65,62 @@ def steady_timer(node: Node, period_s: float, callback: Callable[[], object]) ->
     diagnostics and the periodic log must not.
     """
     return node.create_timer(period_s, callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+
+class RepeatedRequest:
+    """
+    One request at a time to a service; one unanswered for `patience_s` s is asked again.
+
+    A server can take a request and its answer never come: rmw_fastrtps drops the answer while
+    the server has not yet matched the client's reader for it, which happens under load to a
+    client just started (test/unit/nodes/test_repeated_request.py). A request given up is
+    removed from the client: a late answer to it is ignored. Only for requests that may be
+    made twice.
+    """
+
+    def __init__(self, client: Client, patience_s: float,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        """Ask through `client`; `clock` (s) times the wait for an answer."""
+        self.client, self.patience_s, self._clock = client, patience_s, clock
+        self._pending: Future | None = None
+        self._asked_at = 0.0
+
+    def waiting(self) -> bool:
+        """Return whether a request waits for its answer, for less than `patience_s` so far."""
+        return (self._unanswered() is not None
+                and self._clock() - self._asked_at < self.patience_s)
+
+    def overdue(self) -> bool:
+        """Return whether a request has waited `patience_s` or more and is not answered."""
+        return self._unanswered() is not None and not self.waiting()
+
+    def ask(self, request: Any, on_answer: Callable[[Future], object]) -> bool:
+        """
+        Send `request` unless one waits for its answer; return whether it was sent.
+
+        An overdue request is given up first. `on_answer` gets the future once answered.
+        Nothing is sent while no server is matched.
+        """
+        pending = self._unanswered()
+        if pending is not None:
+            if self.waiting():
+                return False
+            self.client.remove_pending_request(pending)
+            self._pending = None
+        if not self.client.service_is_ready():
+            return False
+        self._pending = self.client.call_async(request)
+        self._pending.add_done_callback(on_answer)  # type: ignore[no-untyped-call]
+        self._asked_at = self._clock()
+        return True
+
+    def _unanswered(self) -> Future | None:
+        """Return the request's future while its answer has not come."""
+        pending = self._pending
+        # rclpy leaves Future's methods unannotated.
+        if pending is None or pending.done():  # type: ignore[no-untyped-call]
+            return None
+        return pending
 
 
 class TakenByLoopThread(CallbackGroup):

@@ -24,8 +24,10 @@ The arm's link relays no pose to the bridge until it has called the bridge's `en
 service with false and had its answer (zenoh_config.PoseGate): when it starts, and whenever
 more than `stream_timeout` s pass without a pose from the master (the peer gone, or a blip
 Zenoh's session does not notice). The arm holds, and following resumes only once the operator
-enables the bridge again, not on its own when the poses come back. Where no bridge offers
-`enable` (none within BRIDGE_WAIT_S of the start, or none later), the link says so and relays.
+enables the bridge again, not on its own when the poses come back. A disable unanswered for
+DISABLE_PATIENCE_S is asked again: a server can drop its answer to a client it has just
+discovered. Where no bridge offers `enable` (none within BRIDGE_WAIT_S of the start, or none
+later), the link says so and relays.
 The master's side needs no such call: the driver's watchdog gives zero torque once the
 wrenches stop.
 """
@@ -40,7 +42,8 @@ from kraft_master_driver.nodes.link_emulator import DelayedSender, message_class
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
 from kraft_master_driver.nodes.ros_io import (
-    GIL_SWITCH_INTERVAL_S, InputWaitSet, run_paced, steady_timer, subscribe_raw, take_newest)
+    GIL_SWITCH_INTERVAL_S, InputWaitSet, RepeatedRequest, run_paced, steady_timer, subscribe_raw,
+    take_newest)
 import rclpy.logging
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -50,6 +53,8 @@ LOG_PERIOD_S = 10.0
 PEER_CHECK_S = 1.0
 # The longest the arm's link waits at start for the bridge's enable service to be discovered.
 BRIDGE_WAIT_S = 5.0
+# The bridge answers disable within milliseconds; an answer this late was lost (RepeatedRequest).
+DISABLE_PATIENCE_S = 1.0
 # How often the arm's link looks for a lapsed pose stream and a bridge to disable.
 STREAM_CHECK_S = 0.02
 # The DDS side's raw subscriptions: the newest is sent, so a short queue loses nothing useful.
@@ -122,10 +127,11 @@ class ZenohLinkNode(Node):
         self.sent = dict.fromkeys(zenoh_config.outgoing(side), 0)
         self.received = dict.fromkeys(zenoh_config.incoming(side), 0)
         self.started = time.monotonic()
-        self.gate, self.disabling = None, None
+        self.gate = None
         if side == 'arm':
             self.gate = zenoh_config.PoseGate(config['stream_timeout'])
-            self.enable_client = self.create_client(SetBool, 'enable')
+            self.disabling = RepeatedRequest(self.create_client(SetBool, 'enable'),
+                                             DISABLE_PATIENCE_S)
             steady_timer(self, STREAM_CHECK_S, self._disable_bridge)
         self.zenoh_subscribers = [self._receive(topic, zenoh_config.key(pair, topic, side))
                                   for topic in self.received]
@@ -206,18 +212,20 @@ class ZenohLinkNode(Node):
     def _disable_bridge(self):
         """While the gate is shut, have the bridge disabled; open the gate on its answer."""
         reason = self.gate.reason(time.monotonic())
-        if reason is None or self.disabling is not None:
+        if reason is None or self.disabling.waiting():
             return
-        if self.enable_client.service_is_ready():
-            self.disabling = self.enable_client.call_async(SetBool.Request(data=False))
-            self.disabling.add_done_callback(lambda done: self._bridge_disabled(reason, done))
-        elif time.monotonic() - self.started > BRIDGE_WAIT_S:
+        if self.disabling.overdue():
+            self.get_logger().warning(f'{reason}: the bridge did not answer disable within '
+                                      f'{DISABLE_PATIENCE_S:g} s; asking again')
+        if self.disabling.ask(SetBool.Request(data=False),
+                              lambda done: self._bridge_disabled(reason, done)):
+            return
+        if time.monotonic() - self.started > BRIDGE_WAIT_S:
             self.get_logger().warning(f'{reason}, and no bridge offers enable here: relaying '
                                       'the poses')
             self.gate.reopen()
 
     def _bridge_disabled(self, reason, done):
-        self.disabling = None
         self.get_logger().warning(f'{reason}: disabled the bridge ({done.result().message}); '
                                   'relaying the poses, the bridge follows after enable')
         self.gate.reopen()

@@ -31,7 +31,7 @@ from geometry_msgs.msg import PoseStamped
 from harness import certificates, dds_shm, REPO
 from harness.demo import session_processes
 from harness.driver import ClientNode, next_domain_id, wait_for
-from kraft_master_driver.nodes.ros_io import take_newest
+from kraft_master_driver.nodes.ros_io import RepeatedRequest, take_newest
 from kraft_master_driver.tools.demo import HOME, MUJOCO_BRIDGE, MUJOCO_DRIVER, ros_parameters
 import rclpy
 from rclpy.parameter import Parameter
@@ -44,7 +44,7 @@ HARNESS = pathlib.Path(__file__).resolve().parent
 PYTHON = [sys.executable, '-m']
 START_S = 120.0  # a start-up on a loaded machine
 STOP_S = 30.0  # a node's own guard ends a stuck shutdown in 10 s
-UNANSWERED_S = 5.0  # an enable request the bridge has not answered went to a killed bridge
+UNANSWERED_S = 5.0  # an enable request the bridge has not answered will not be answered
 MAX_DELAY_S = 0.5  # the largest one-way delay step: the driver admits wrenches that old
 # The bridge as the demo runs it on the Panda (2 s timeouts for a loaded machine), passivity on,
 # its box 5 cm taller: a stale pose that comes back registers the master wherever the hand is,
@@ -312,7 +312,7 @@ class Operator:
         node.create_subscription(PoseStamped, 'measured_cp', self._on_arm_pose, QoSProfile(
             depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.clutch_pub = node.create_publisher(Bool, 'clutch', reliable)
-        self.enable_client = node.create_client(SetBool, 'enable')
+        self.enabling = RepeatedRequest(node.create_client(SetBool, 'enable'), UNANSWERED_S)
         self.parameters = {'arm': AsyncParameterClient(node, '/kraft_master_arm_sim')}
         if site.link == 'emulator':
             self.parameters['link'] = AsyncParameterClient(self.master_node.node,
@@ -323,8 +323,6 @@ class Operator:
             PoseStamped, 'pose', lambda _msg: None,
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self._master_z = None
-        self._pending = None
-        self._asked = 0.0  # time.monotonic() of the pending request
         self._stopping = threading.Event()
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -357,18 +355,12 @@ class Operator:
         """
         Ask the bridge to enable unless an earlier request is still waiting for its answer.
 
-        A request unanswered for UNANSWERED_S is given up: the bridge it reached was killed
-        (discovery still listed its service when the new bridge's was not yet matched), and
-        it would never be answered; an operator would press enable again.
+        A request unanswered for UNANSWERED_S is given up and asked again, as an operator would
+        press enable again: it went to a bridge since killed (discovery still listed its
+        service), or a bridge just started dropped the answer (ros_io.RepeatedRequest).
         """
         with self._lock:
-            if self._pending is not None and not self._pending.done():
-                if time.monotonic() - self._asked < UNANSWERED_S:
-                    return
-                self.enable_client.remove_pending_request(self._pending)
-            if self.enable_client.service_is_ready():
-                self._pending = self.enable_client.call_async(SetBool.Request(data=True))
-                self._asked = time.monotonic()
+            self.enabling.ask(SetBool.Request(data=True), lambda _done: None)
 
     def clutch(self, pressed):
         """Press or release the clutch."""
