@@ -259,7 +259,8 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Vi
     Check that the torque rises by at most max_torque_step a message as force comes back.
 
     The torque's size (its largest axis) from the first message with torque at or after a
-    fault's end, for come_back_window: the force coming back, not a touch seconds later. After
+    fault's end, for come_back_window: the force coming back, not a touch seconds later; and
+    only until another fault begins (a wrench flood's steps are its own). After
     a fault that makes the force untrue or one on the master's or the clock's side (the driver
     zeroes the torque for them); not after a stuck sensor, a loss burst or a delay step: the
     force that comes through them is the arm's, and a step in it is the arm's contact
@@ -275,8 +276,9 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Vi
         if not after.size:
             continue
         back = float(effort.t[after[0]])
-        rows = np.flatnonzero((effort.t[1:] >= back) &
-                              (effort.t[1:] <= back + limits.come_back_window) &
+        until = min([back + limits.come_back_window] + [
+            other.start for other in faults if other is not fault and other.start >= fault.end])
+        rows = np.flatnonzero((effort.t[1:] >= back) & (effort.t[1:] < until) &
                               (rises > limits.max_torque_step))
         found += _first(effort, rows + 1, lambda row: (
             f'torque rose {rises[row - 1]:.4f} N*m in one message as force came back after '

@@ -193,6 +193,27 @@ def test_a_torque_step_counts_only_after_a_fault_that_took_the_force_away(
     assert bool(lines) == found, lines
 
 
+@pytest.mark.parametrize('flood_from, found', [(-0.005, False), (0.05, True)])
+def test_a_torque_step_after_another_fault_began_is_not_the_force_coming_back(
+        tmp_path, flood_from, found):
+    # As above, the torque steps 0.01 s after an arm's fault that made the force untrue; a
+    # wrench flood (a second source, side master) that began before the step owns it.
+    step_at = T0 + 3.6
+    messages = [(topic, kind, at, dataclasses.replace(message, effort=np.full(6, 1.0)))
+                if topic.endswith('joint_states') and at > step_at else
+                (topic, kind, at, message)
+                for topic, kind, at, message in session_messages()]
+    write_session(tmp_path / 'bag', messages=messages)
+    faults = [{'kind': 'arm restart', 'side': 'arm', 'start': step_at - 0.5,
+               'end': step_at - 0.01, 'force_untrue': True},
+              {'kind': 'wrench flood', 'side': 'master', 'start': step_at + flood_from,
+               'end': step_at + 0.3}]
+    lines = [line for line in check_session(tmp_path / 'bag', faults=faults).violations
+             if 'torque rose' in line]
+    assert bool(lines) == found, lines
+    assert all('after arm restart' in line for line in lines), lines
+
+
 def test_bad_faults_are_refused_naming_the_fault_or_the_line(tmp_path):
     write_session(tmp_path / 'bag')
     with pytest.raises(ValueError, match='fault 1: needs kind'):
