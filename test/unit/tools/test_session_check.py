@@ -172,6 +172,17 @@ def test_an_enable_received_after_the_first_torque_and_command_is_out_of_order_w
                for line in lines), lines
 
 
+def write_torque_step(path):
+    """Write the session with the torque stepping from 0.2 to 1 N*m; return when (s)."""
+    step_at = T0 + 3.6
+    messages = [(topic, kind, at, dataclasses.replace(message, effort=np.full(6, 1.0)))
+                if topic.endswith('joint_states') and at > step_at else
+                (topic, kind, at, message)
+                for topic, kind, at, message in session_messages()]
+    write_session(path, messages=messages)
+    return step_at
+
+
 @pytest.mark.parametrize('side, untrue, found', [
     ('arm', False, False), ('link', False, False), ('arm', True, True), ('master', False, True),
     ('clock', False, True)])
@@ -180,12 +191,7 @@ def test_a_torque_step_counts_only_after_a_fault_that_took_the_force_away(
     # At T0 + 3.6 s (past the recovery window of the recorded FAULT) the torque steps from 0.2
     # to 1 N*m: a stuck sensor's end (the arm's true force returning, as at a touch) may do
     # that; the driver's force coming back may not.
-    step_at = T0 + 3.6
-    messages = [(topic, kind, at, dataclasses.replace(message, effort=np.full(6, 1.0)))
-                if topic.endswith('joint_states') and at > step_at else
-                (topic, kind, at, message)
-                for topic, kind, at, message in session_messages()]
-    write_session(tmp_path / 'bag', messages=messages)
+    step_at = write_torque_step(tmp_path / 'bag')
     fault = {'kind': 'a fault', 'side': side, 'start': step_at - 0.5, 'end': step_at - 0.01,
              'force_untrue': untrue}
     lines = [line for line in check_session(tmp_path / 'bag', faults=[fault]).violations
@@ -198,12 +204,7 @@ def test_a_torque_step_after_another_fault_began_is_not_the_force_coming_back(
         tmp_path, flood_from, found):
     # As above, the torque steps 0.01 s after an arm's fault that made the force untrue; a
     # wrench flood (a second source, side master) that began before the step owns it.
-    step_at = T0 + 3.6
-    messages = [(topic, kind, at, dataclasses.replace(message, effort=np.full(6, 1.0)))
-                if topic.endswith('joint_states') and at > step_at else
-                (topic, kind, at, message)
-                for topic, kind, at, message in session_messages()]
-    write_session(tmp_path / 'bag', messages=messages)
+    step_at = write_torque_step(tmp_path / 'bag')
     faults = [{'kind': 'arm restart', 'side': 'arm', 'start': step_at - 0.5,
                'end': step_at - 0.01, 'force_untrue': True},
               {'kind': 'wrench flood', 'side': 'master', 'start': step_at + flood_from,
