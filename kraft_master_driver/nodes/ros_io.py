@@ -71,11 +71,11 @@ class RepeatedRequest:
     """
     One request at a time to a service; one unanswered for `patience_s` s is asked again.
 
-    A server can take a request and its answer never come: rmw_fastrtps drops the answer while
-    the server has not yet matched the client's reader for it, which happens under load to a
-    client just started (test/unit/nodes/test_repeated_request.py). A request given up is
-    removed from the client: a late answer to it is ignored. Only for requests that may be
-    made twice.
+    A server can take a request and its answer never come to a client just started: rmw_fastrtps
+    drops an answer to a client whose reader it has not matched yet, and a restarted link lost
+    one under load without the bridge saying so (doc/safety.md). A request given up is removed
+    from the client: a late answer to it is ignored (test/unit/nodes/test_repeated_request.py).
+    Only for requests that may be made twice.
     """
 
     def __init__(self, client: Client, patience_s: float,

@@ -25,9 +25,9 @@ service with false and had its answer (zenoh_config.PoseGate): when it starts, a
 more than `stream_timeout` s pass without a pose from the master (the peer gone, or a blip
 Zenoh's session does not notice). The arm holds, and following resumes only once the operator
 enables the bridge again, not on its own when the poses come back. A disable unanswered for
-DISABLE_PATIENCE_S is asked again: a server can drop its answer to a client it has just
-discovered. Where no bridge offers `enable` (none within BRIDGE_WAIT_S of the start, or none
-later), the link says so and relays.
+DISABLE_PATIENCE_S is asked again: an answer to a client just started can be lost. Where no
+bridge offers `enable` (none within BRIDGE_WAIT_S of the start, or none later), the link says
+so and relays.
 The master's side needs no such call: the driver's watchdog gives zero torque once the
 wrenches stop.
 """

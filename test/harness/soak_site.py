@@ -357,7 +357,7 @@ class Operator:
 
         A request unanswered for UNANSWERED_S is given up and asked again, as an operator would
         press enable again: it went to a bridge since killed (discovery still listed its
-        service), or a bridge just started dropped the answer (ros_io.RepeatedRequest).
+        service), or its answer was lost (ros_io.RepeatedRequest).
         """
         with self._lock:
             self.enabling.ask(SetBool.Request(data=True), lambda _done: None)
