@@ -37,7 +37,7 @@ from kraft_master_driver.core.teleoperation_contact import ContactSharing, Regis
 from kraft_master_driver.core.teleoperation_inputs import (
     arm_side_late, checked_pose, checked_reading, enable_refusal, Floats, hold_reason,
     stale_arm_side, tare_refusal, tracking_error)
-from kraft_master_driver.core.teleoperation_motion import Motion, Pose
+from kraft_master_driver.core.teleoperation_motion import Motion, Pose, Settling
 from kraft_master_driver.core.teleoperation_settings import Array, checked, MAX_STEP, Settings
 from kraft_master_driver.core.teleoperation_tuning import (
     changed, FORCE, RampedForce, REGISTERING, Sensed)
@@ -114,6 +114,7 @@ class Teleoperation:
         self.clutch_pressed = False
         self.master: Optional[tuple[Pose, float]] = None  # (pose, receipt time)
         self.arm: Optional[tuple[Pose, float]] = None
+        self.arm_settling = Settling()
         self.reading: Optional[tuple[Array, float]] = None  # (6 floats, sensor frame; time)
         self._reported: Optional[tuple[OperatingState, str]] = None  # the state last returned
 
@@ -184,9 +185,11 @@ class Teleoperation:
         if refusal is not None or self.state in DRIVING:
             return refusal
         assert self.arm is not None  # enable_refusal needs it fresh
-        # Registered at the next master pose: the arm's target starts where it is.
-        self.motion.command, self.motion.registration = None, None
-        self.motion.hold, self.motion.held_for_arm = self.arm[0], False
+        # Registered at a master pose once the arm is still: its target starts where it is.
+        # Until then it holds where it was held (after a FAULT), or where measured.
+        motion = self.motion
+        motion.command, motion.registration = None, None
+        motion.hold, motion.held_for_arm = motion.hold or self.arm[0], True
         self.state = OperatingState.CLUTCHED if self.clutch_pressed else OperatingState.ENABLED
         self.reason = ''
         return None
@@ -297,6 +300,9 @@ class Teleoperation:
                 if arm_side_late(self.settings, self.arm, self.reading, now) is not None:
                     return self._outputs()  # held until the arm's side is fresh again
                 assert self.arm is not None  # fresh, just checked
+                if self.motion.held_for_arm and not self.arm_settling.still:
+                    self.reason = 'holding: until the arm is still'
+                    return self._outputs()  # a moving arm's pose is behind where it is
                 self.reason = ''
                 self.motion.follow_again(pose, self.arm[0])
             else:
@@ -308,13 +314,18 @@ class Teleoperation:
         return self._outputs(self._command() if self.following else None)
 
     def arm_pose(self, frame_id: str, position: Floats, quaternion: Floats,
-                 now: float) -> Outputs:
-        """Take the arm's measured tool pose (arm base frame); check the tracking error."""
+                 now: float, stamp: Optional[float] = None) -> Outputs:
+        """
+        Take the arm's measured tool pose (arm base frame); check the tracking error.
+
+        stamp: when the arm measured it (s, the arm's clock; None: `now`), to tell it still.
+        """
         pose = checked_pose('measured_cp', frame_id, self.settings.arm_frame, position,
                             quaternion, self.settings)
         if isinstance(pose, str):
             return self._refuse(pose, now)
         self.arm = (pose, now)
+        self.arm_settling.measured(pose, now if stamp is None else stamp)
         reference = self.motion.command if self.following else self.motion.hold
         if self.state in DRIVING and reference is not None:
             error = tracking_error(pose, reference, self.settings)

@@ -28,6 +28,49 @@ class Pose(NamedTuple):
         return rotation_to_quaternion(self.rotation)
 
 
+# The arm is taken as still, so that a measured pose a little late is still where it is, once
+# it has stayed this near one pose for SETTLE_TIME of its own clock: under 10 mm/s, 0.1 rad/s.
+SETTLE_TIME = 0.05  # s, of the measured poses' stamps
+SETTLE_DISTANCE = 0.0005  # m
+SETTLE_ANGLE = 0.005  # rad
+
+
+class Settling:
+    """
+    Whether the arm is still: its measured poses near one pose for SETTLE_TIME of their stamps.
+
+    Told each measured pose with its stamp (the arm's clock: its differences alone count). A
+    gap in the stamps longer than SETTLE_TIME, or one going back, starts the count again: what
+    the arm did in between is not known. A pose stamped as the one before counts only if near.
+    """
+
+    def __init__(self) -> None:
+        """Start not knowing: not still."""
+        self._since: Optional[tuple[Pose, float]] = None  # the pose it stays near, and since
+        self._last_stamp: Optional[float] = None
+
+    def measured(self, pose: Pose, stamp: float) -> None:
+        """Take one measured pose, stamped `stamp` (s)."""
+        gap = None if self._last_stamp is None else stamp - self._last_stamp
+        self._last_stamp = stamp
+        if (self._since is None or gap is None or not 0.0 <= gap <= SETTLE_TIME
+                or _apart(pose, self._since[0])):
+            self._since = (pose, stamp)
+
+    @property
+    def still(self) -> bool:
+        """Return whether the arm has stayed near one pose for SETTLE_TIME."""
+        return (self._since is not None and self._last_stamp is not None
+                and self._last_stamp - self._since[1] >= SETTLE_TIME)
+
+
+def _apart(pose: Pose, other: Pose) -> bool:
+    """Return whether two poses are farther apart than SETTLE_DISTANCE or SETTLE_ANGLE."""
+    turn = rotation_vector(pose.rotation @ other.rotation.T)
+    return bool(np.linalg.norm(pose.position - other.position) > SETTLE_DISTANCE
+                or np.linalg.norm(turn) > SETTLE_ANGLE)
+
+
 class Motion:
     """The arm's command: following, mapped, boxed, speed-limited, through the port; or held."""
 

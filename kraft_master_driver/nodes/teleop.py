@@ -216,8 +216,10 @@ class TeleopNode(Node):
         self.bridge.master_energy(energies[0], sec * 1_000_000_000 + nanosec)
 
     def _on_measured_cp(self, data, _received_ns):
-        _, _, frame_id, values = POSE_STAMPED.decode(data)
-        self._send(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic()))
+        sec, nanosec, frame_id, values = POSE_STAMPED.decode(data)
+        stamp = sec + 1e-9 * nanosec if sec or nanosec else None  # unstamped: when taken
+        self._send(self.bridge.arm_pose(frame_id, values[:3], values[3:], time.monotonic(),
+                                        stamp))
 
     def _on_measured_cf(self, data, _received_ns):
         _, _, frame_id, values = cdr.decode_wrench_stamped(data)

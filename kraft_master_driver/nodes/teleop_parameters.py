@@ -121,7 +121,8 @@ PARAMETERS = {
     'arm_hold_timeout': _tunable('arm_hold_timeout', 'A measured_cp or measured_cf older '
                                  'than this (s) holds the arm where it was last sent, the '
                                  'master free and told no contact, until both are fresh again '
-                                 '(registered anew where the arm is measured); arm_timeout and '
+                                 'and the arm still (registered anew where the arm is '
+                                 'measured); arm_timeout and '
                                  'ft_timeout FAULT later.', low=0.001, high=10.0),
     'model_tolerance': _tunable('model_tolerance', 'Force (N) by which the arm may press harder '
                                 'than the contact model the master was last sent; beyond it the '

@@ -364,7 +364,11 @@ def test_enable_at_start_waits_for_the_inputs_then_enables_once(start_bridge):
 def test_twist_mode_drives_toward_the_target_and_stops_when_clutched(start_bridge):
     rig, _ = start_bridge([('mode', 'twist'), ('twist_gain', '10.0')])
     assert rig.enable().success
-    rig.run_until(lambda: rig.servo_cv)
+    # Following once the master is sent the arm's contact: registered where the arm is.
+    rig.reading = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    rig.run_until(lambda: rig.servo_cv and rig.wrenches
+                  and forces([rig.wrenches[-1]])[0][2] == pytest.approx(1.0))
+    rig.reading = np.zeros(6)
     rig.arm_offset = np.array([-0.01, 0.0, 0.0])  # the arm falls 1 cm behind its target
     rig.run_until(lambda: rig.servo_cv and rig.servo_cv[-1].twist.linear.x == pytest.approx(
         0.1, abs=1e-9))

@@ -5,7 +5,9 @@ import math
 
 from kraft_master_driver.core.rotations import quaternion_to_rotation
 from kraft_master_driver.core.teleoperation import NoBaseRotation, OperatingState, Teleoperation
-from kraft_master_driver.core.teleoperation_settings import Settings
+from kraft_master_driver.core.teleoperation_motion import (
+    Pose, SETTLE_ANGLE, SETTLE_DISTANCE, SETTLE_TIME, Settling)
+from kraft_master_driver.core.teleoperation_settings import MAX_STEP, Settings
 from kraft_master_driver.core.teleoperation_tuning import RAMP_S
 import numpy as np
 import pytest
@@ -24,7 +26,11 @@ class Session:
     """A Teleoperation fed by a stand-in master, arm and F/T sensor, 1 ms per step."""
 
     def __init__(self, **settings):
-        """Start at t = 1 s, every input fresh; speed limits wide, no resume ramp unless given."""
+        """
+        Start at t = 1 s, every input fresh, the arm still; wide speed limits, no resume ramp.
+
+        The arm stood still at home for SETTLE_TIME: it is followed from where it is at once.
+        """
         settings = {'max_linear_speed': 10.0, 'max_angular_speed': 100.0,
                     'force_resume_time': 0.0, **settings}
         self.bridge = Teleoperation(Settings(**settings))
@@ -33,7 +39,8 @@ class Session:
         self.master_orientation = IDENTITY
         self.arm_orientation = IDENTITY
         self.reading = np.zeros(6)
-        self.feed(arm=ARM_HOME)
+        for _ in range(round(SETTLE_TIME / DT) + 2):
+            self.feed(arm=ARM_HOME)
 
     def feed(self, master=None, arm=None, reading=None, master_orientation=None):
         """Advance 1 ms and hand the bridge the master pose, arm pose and F/T reading."""
@@ -771,12 +778,105 @@ def test_a_late_arm_is_held_its_contact_withdrawn_before_any_fault_then_followed
     np.testing.assert_allclose(bridge.arm_command().position, sent, atol=0.0001 * 102)
     held = bridge.arm_command().position
     assert not bridge.master_wrench(session.now).any()
-    # Back, restarted 30 mm from where it was sent: registered anew where it is measured, one
-    # master step on; not dragged back to where it was sent.
+    # Back, restarted 30 mm from where it was sent: held until it has been still for
+    # SETTLE_TIME, then registered anew where it is measured, one master step on; not dragged
+    # back to where it was sent.
     restarted = held + [0.0, 0.03, 0.0]
     session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
-    session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
+    held_still = 0
+    while bridge.describe() == 'ENABLED: holding: until the arm is still' or not held_still:
+        np.testing.assert_array_equal(bridge.arm_command().position, held)
+        session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
+        held_still += 1
+    assert SETTLE_TIME <= held_still * DT <= SETTLE_TIME + 3 * DT
     assert bridge.describe() == 'ENABLED'
     session.feed(master=session.master + [0.0001, 0.0, 0.0], arm=restarted)
     command = bridge.arm_command()
     assert np.linalg.norm(command.position - restarted) <= 0.0001 + 1e-12
+
+
+def _stillness(positions, stamps, turn_rate=0.0):
+    """Return whether Settling finds the arm still after each pose (turning at turn_rate)."""
+    settling, found = Settling(), []
+    for position, stamp in zip(positions, stamps):
+        rotation = quaternion_to_rotation(about_z(turn_rate * stamp))
+        settling.measured(Pose(np.asarray(position, dtype=float), rotation), stamp)
+        found.append(settling.still)
+    return found
+
+
+def test_the_arm_is_still_once_near_one_pose_for_settle_time_of_its_own_stamps():
+    stamps = 100.0 + DT * np.arange(200)
+    at_rest = _stillness([ARM_HOME] * 200, stamps)
+    first = at_rest.index(True)
+    assert all(at_rest[first:])
+    assert stamps[first] - stamps[0] == pytest.approx(SETTLE_TIME, abs=1.01 * DT)
+    creeping = SETTLE_DISTANCE / SETTLE_TIME / 2  # m/s: half the speed it takes as moving
+    assert any(_stillness([ARM_HOME + (creeping * (t - 100.0), 0, 0) for t in stamps], stamps))
+    moving = 2 * SETTLE_DISTANCE / SETTLE_TIME
+    assert not any(_stillness([ARM_HOME + (moving * (t - 100.0), 0, 0) for t in stamps], stamps))
+    assert not any(_stillness([ARM_HOME] * 200, stamps, turn_rate=2 * SETTLE_ANGLE / SETTLE_TIME))
+
+
+@pytest.mark.parametrize('jump', [SETTLE_TIME + DT, -DT, -10.0])
+def test_a_gap_or_a_step_back_in_the_arms_stamps_starts_the_count_again(jump):
+    stamps = list(100.0 + DT * np.arange(30))
+    stamps += [stamps[-1] + jump + DT * k for k in range(60)]
+    found = _stillness([ARM_HOME] * 90, stamps)
+    assert not any(found[:30 + round(SETTLE_TIME / DT) - 1])
+    assert found[-1]
+
+
+def test_poses_stamped_alike_do_not_make_the_arm_still():
+    assert not any(_stillness([ARM_HOME] * 200, [100.0] * 200))
+
+
+def test_an_arm_moving_to_its_hold_is_followed_only_once_still_where_it_stopped():
+    # The soak, on a loaded machine: the arm's poses came late, so the arm was held where it
+    # was sent, while it was still on its way there; the bridge then registered it at a pose
+    # taken late, one the arm had left 20 mm behind: a step back of the command. Now the
+    # bridge waits until the arm is still, wherever that is.
+    session = Session(arm_timeout=2.0, ft_timeout=2.0, arm_hold_timeout=0.1,
+                      max_linear_speed=0.25).enabled()
+    bridge = session.bridge
+    for step in range(1, 81):
+        session.follow((0.0, 0.0, -0.00025 * step))
+    hold = bridge.arm_command().position.copy()
+    for _ in range(120):  # the arm's side is late: held where it was sent
+        session.now += DT
+        bridge.master_pose('kraft_master_base', session.master, IDENTITY, session.now)
+        bridge.ft_reading('ft_sensor', np.zeros(6), session.now)
+        bridge.tick(session.now)
+    assert bridge.describe() == 'ENABLED: holding: measured_cp older than arm_hold_timeout 0.1 s'
+    commands = []
+    for step in range(400):  # it comes 20 mm short, reaches the hold at 0.2 m/s, stays there
+        arm = hold + (0.0, 0.0, max(0.02 - 0.0002 * step, 0.0))
+        session.feed(master=session.master, arm=arm)
+        commands.append(bridge.arm_command().position.copy())
+        if 0 < step < 100:
+            assert bridge.describe() == 'ENABLED: holding: until the arm is still'
+    assert bridge.describe() == 'ENABLED'
+    steps = np.linalg.norm(np.diff(commands, axis=0), axis=1)
+    assert steps.max() <= 0.25 * MAX_STEP
+    np.testing.assert_allclose(commands[-1], hold, atol=1e-12)
+
+
+def test_enabled_again_while_the_arm_moves_it_is_held_until_still_then_followed_from_there():
+    session = Session(max_tracking_error=0.01).enabled()
+    bridge = session.bridge
+    stuck = ARM_HOME + (0.0, 0.0, -0.011)
+    assert bridge.arm_pose('base_link', stuck, IDENTITY, session.now).refusal is not None
+    assert bridge.state == 'FAULT'
+    # Pushed by hand while the operator enables: held where the FAULT held it, not at a pose
+    # it is leaving, until it has stopped; then followed from where it stopped.
+    pushed = [stuck + (0.0, 0.0002 * step, 0.0) for step in range(1, 41)]
+    session.feed(arm=pushed[0])
+    assert bridge.enable(session.now).refusal is None
+    for position in pushed[1:]:
+        session.feed(arm=position)
+        assert bridge.describe() == 'ENABLED: holding: until the arm is still'
+        np.testing.assert_array_equal(bridge.arm_command().position, stuck)
+    for _ in range(round(SETTLE_TIME / DT) + 2):
+        session.feed(arm=pushed[-1])
+    assert bridge.describe() == 'ENABLED'
+    np.testing.assert_array_equal(bridge.arm_command().position, pushed[-1])
