@@ -325,7 +325,8 @@ class Teleoperation:
         if isinstance(pose, str):
             return self._refuse(pose, now)
         self.arm = (pose, now)
-        self.arm_settling.measured(pose, now if stamp is None else stamp)
+        self.arm_settling.measured(pose, now if stamp is None else stamp,
+                                   self.settings.arm_hold_timeout)
         reference = self.motion.command if self.following else self.motion.hold
         if self.state in DRIVING and reference is not None:
             error = tracking_error(pose, reference, self.settings)

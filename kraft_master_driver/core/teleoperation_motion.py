@@ -40,8 +40,9 @@ class Settling:
     Whether the arm is still: its measured poses near one pose for SETTLE_TIME of their stamps.
 
     Told each measured pose with its stamp (the arm's clock: its differences alone count). A
-    gap in the stamps longer than SETTLE_TIME, or one going back, starts the count again: what
-    the arm did in between is not known. A pose stamped as the one before counts only if near.
+    gap in the stamps longer than the bridge's arm_hold_timeout, or one going back, starts the
+    count again: what the arm did in between is not known. A pose stamped as the one before
+    counts only if near.
     """
 
     def __init__(self) -> None:
@@ -49,11 +50,11 @@ class Settling:
         self._since: Optional[tuple[Pose, float]] = None  # the pose it stays near, and since
         self._last_stamp: Optional[float] = None
 
-    def measured(self, pose: Pose, stamp: float) -> None:
-        """Take one measured pose, stamped `stamp` (s)."""
+    def measured(self, pose: Pose, stamp: float, longest_gap: float) -> None:
+        """Take one measured pose, stamped `stamp` (s); after `longest_gap` s, start again."""
         gap = None if self._last_stamp is None else stamp - self._last_stamp
         self._last_stamp = stamp
-        if (self._since is None or gap is None or not 0.0 <= gap <= SETTLE_TIME
+        if (self._since is None or gap is None or not 0.0 <= gap <= longest_gap
                 or _apart(pose, self._since[0])):
             self._since = (pose, stamp)
 

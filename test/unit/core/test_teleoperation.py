@@ -796,11 +796,15 @@ def test_a_late_arm_is_held_its_contact_withdrawn_before_any_fault_then_followed
 
 
 def _stillness(positions, stamps, turn_rate=0.0):
-    """Return whether Settling finds the arm still after each pose (turning at turn_rate)."""
+    """
+    Return whether Settling finds the arm still after each pose (turning at turn_rate).
+
+    Gaps up to 0.1 s in the stamps count, as in a bridge with arm_hold_timeout 0.1 s.
+    """
     settling, found = Settling(), []
     for position, stamp in zip(positions, stamps):
         rotation = quaternion_to_rotation(about_z(turn_rate * stamp))
-        settling.measured(Pose(np.asarray(position, dtype=float), rotation), stamp)
+        settling.measured(Pose(np.asarray(position, dtype=float), rotation), stamp, 0.1)
         found.append(settling.still)
     return found
 
@@ -818,8 +822,9 @@ def test_the_arm_is_still_once_near_one_pose_for_settle_time_of_its_own_stamps()
     assert not any(_stillness([ARM_HOME] * 200, stamps, turn_rate=2 * SETTLE_ANGLE / SETTLE_TIME))
 
 
-@pytest.mark.parametrize('jump', [SETTLE_TIME + DT, -DT, -10.0])
+@pytest.mark.parametrize('jump', [0.1 + DT, -DT, -10.0])
 def test_a_gap_or_a_step_back_in_the_arms_stamps_starts_the_count_again(jump):
+    # A gap longer than arm_hold_timeout (0.1 s here) or going back: the count starts again.
     stamps = list(100.0 + DT * np.arange(30))
     stamps += [stamps[-1] + jump + DT * k for k in range(60)]
     found = _stillness([ARM_HOME] * 90, stamps)
@@ -829,6 +834,10 @@ def test_a_gap_or_a_step_back_in_the_arms_stamps_starts_the_count_again(jump):
 
 def test_poses_stamped_alike_do_not_make_the_arm_still():
     assert not any(_stillness([ARM_HOME] * 200, [100.0] * 200))
+
+
+def test_an_arm_measured_at_16_hz_is_still_after_two_poses_alike():
+    assert _stillness([ARM_HOME] * 3, [100.0, 100.0625, 100.125]) == [False, True, True]
 
 
 def test_an_arm_moving_to_its_hold_is_followed_only_once_still_where_it_stopped():
