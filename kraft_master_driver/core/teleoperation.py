@@ -54,6 +54,7 @@ class OperatingState(StrEnum):
 
 
 DRIVING = (OperatingState.ENABLED, OperatingState.CLUTCHED)  # the states that command the arm
+UNTIL_STILL = 'holding: until the arm is still'  # enabled, not following the master yet
 
 
 class StateChange(NamedTuple):
@@ -191,7 +192,7 @@ class Teleoperation:
         motion.command, motion.registration = None, None
         motion.hold, motion.held_for_arm = motion.hold or self.arm[0], True
         self.state = OperatingState.CLUTCHED if self.clutch_pressed else OperatingState.ENABLED
-        self.reason = ''
+        self.reason = '' if self.arm_settling.still else UNTIL_STILL
         return None
 
     def set_base_rotation(self, quaternion: Floats) -> Optional[str]:
@@ -301,7 +302,7 @@ class Teleoperation:
                     return self._outputs()  # held until the arm's side is fresh again
                 assert self.arm is not None  # fresh, just checked
                 if self.motion.held_for_arm and not self.arm_settling.still:
-                    self.reason = 'holding: until the arm is still'
+                    self.reason = UNTIL_STILL
                     return self._outputs()  # a moving arm's pose is behind where it is
                 self.reason = ''
                 self.motion.follow_again(pose, self.arm[0])

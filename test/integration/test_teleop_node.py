@@ -187,7 +187,7 @@ def start_bridge(install_prefix):
 
 
 def enabled(rig):
-    """Enable and wait until following: the first servo_cp after enable has come."""
+    """Enable and wait until following: 'ENABLED', and the first servo_cp after enable."""
     rig.servo_cp.clear()
 
     def answered():
@@ -197,7 +197,7 @@ def enabled(rig):
         return response if response.success or 'no fresh' not in response.message else None
     response = rig.run_until(answered)
     assert response.success, response.message
-    rig.run_until(lambda: rig.servo_cp)
+    rig.run_until(lambda: rig.servo_cp and rig.state() == 'ENABLED')
     return rig
 
 

@@ -493,6 +493,10 @@ def test_the_state_comes_back_once_when_it_changed():
     assert bridge.first_outputs().state.text == 'DISABLED: not enabled'
     assert bridge.master_pose('kraft_master_base', (0, 0, 0), IDENTITY, 1.0).state is None
     assert bridge.arm_pose('base_link', ARM_HOME, IDENTITY, 1.0).state is None
+    moving = bridge.enable(1.0)  # the arm measured once: not known to be still
+    assert moving.state == 'ENABLED: holding: until the arm is still'
+    assert bridge.disable().outputs.state.text == 'DISABLED: disabled'
+    assert bridge.arm_pose('base_link', ARM_HOME, IDENTITY, 1.0, 1.0 + SETTLE_TIME).state is None
     answer = bridge.enable(1.0)
     assert answer.state == 'ENABLED' and answer.outputs.state.text == 'ENABLED'
     assert bridge.enable(1.0).outputs.state is None
