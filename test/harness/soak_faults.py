@@ -158,7 +158,8 @@ def zenoh_restart(side):
 
     SIGKILL, as a crash or the OOM killer ends it: no goodbye to the peer, no DDS teardown (the
     shared memory it leaves is removed). Over, at the earliest, when it is started again: it
-    carries nothing before; the peers then find each other again on their own.
+    carries nothing before; the peers then find each other again on their own. Started again
+    on a DDS participant id no process of the run had (Site.fresh_participant).
     """
     def inject(soak, duration, _rng):
         link = soak.site.children[f'zenoh_{side}']
@@ -166,7 +167,7 @@ def zenoh_restart(side):
         link.kill()
         hold(soak, duration)
         end = time.time()
-        link.start()
+        link.start(soak.site.fresh_participant())
         return start, end
     return inject
 

@@ -65,6 +65,18 @@ ZENOH_PAIR = 'kraft_master/soak'
 ZENOH_ARM = {'stream_timeout': BRIDGE['master_timeout'] / 2}
 
 
+# The highest participant id whose ports stay in its domain's range (Fast DDS: 7400 + 250 *
+# domain + 10 + 2 * id, and one more), and a default profile that sets it.
+MAX_PARTICIPANT_ID = 119
+PARTICIPANT_PROFILE = (
+    '<?xml version="1.0" encoding="UTF-8" ?>\n'
+    '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
+    '  <participant profile_name="restarted" is_default_profile="true">\n'
+    '    <rtps><participantID>{participant_id}</participantID></rtps>\n'
+    '  </participant>\n'
+    '</profiles>\n')
+
+
 def free_port():
     """Return a TCP port of 127.0.0.1 that nothing listens on now."""
     with socket.socket() as probe:
@@ -93,10 +105,12 @@ class Child:
         self.pids = []  # every incarnation's
         self.start()
 
-    def start(self):
-        """Start (again)."""
+    def start(self, dds_profile=None):
+        """Start (again); with `dds_profile`, a Fast DDS XML profile file for its participant."""
+        env = self.env if dds_profile is None else dict(
+            self.env, FASTRTPS_DEFAULT_PROFILES_FILE=str(dds_profile))
         self.process = subprocess.Popen(
-            self.command, env=self.env, cwd=REPO, text=True, start_new_session=True,
+            self.command, env=env, cwd=REPO, text=True, start_new_session=True,
             stdin=subprocess.PIPE if self.pipes else subprocess.DEVNULL,
             stdout=subprocess.PIPE if self.pipes else self.log, stderr=self.log)
         self.pids.append(self.process.pid)
@@ -152,6 +166,7 @@ class Site:
         self.env = {'master': dict(base, ROS_DOMAIN_ID=str(self.master_domain)),
                     'arm': dict(base, ROS_DOMAIN_ID=str(self.arm_domain))}
         self.children = {}
+        self._fresh_ids = iter(range(MAX_PARTICIPANT_ID, 0, -1))
         self.certificates = None
         self.watcher = dds_shm.Watcher()
         self.watcher.start()
@@ -231,14 +246,32 @@ class Site:
         return float(answer[1])
 
     def restart(self, name, started):
-        """SIGKILL a child, start it again; return the kill's time, once started(dead) holds."""
+        """
+        SIGKILL a child, start it again; return the kill's time, once started(dead) holds.
+
+        Started again on a DDS participant id no process of the run had (fresh_participant).
+        """
         killed = time.time()
         self.children[name].kill()
         dead = time.time()  # what the killed process sent is stamped before this
-        self.children[name].start()
+        self.children[name].start(self.fresh_participant())
         wait_for(lambda: started(dead) or not self.children[name].alive(), START_S)
         assert self.children[name].alive(), f'{name} did not start again: see {self.work}'
         return killed
+
+    def fresh_participant(self):
+        """
+        Return a Fast DDS profile (a file in the work directory) with a participant id unused.
+
+        Taken from the top of a domain's ids down, as first starts take them from 0 up. On the
+        id of the process it replaces, and so on its shared-memory port numbers, a restarted
+        process was now and then never reached over shared memory on a loaded machine: Fast
+        DDS 2.14 replaced its port's file while it listened (doc/safety.md).
+        """
+        participant_id = next(self._fresh_ids)
+        profile = self.work / f'fastdds_participant_{participant_id}.xml'
+        profile.write_text(PARTICIPANT_PROFILE.format(participant_id=participant_id))
+        return profile
 
     def rss(self):
         """Return {name: (pid, KiB)} of the running children."""
