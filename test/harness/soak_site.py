@@ -65,9 +65,11 @@ ZENOH_PAIR = 'kraft_master/soak'
 ZENOH_ARM = {'stream_timeout': BRIDGE['master_timeout'] / 2}
 
 
-# The highest participant id whose ports stay in its domain's range (Fast DDS: 7400 + 250 *
-# domain + 10 + 2 * id, and one more), and a default profile that sets it.
-MAX_PARTICIPANT_ID = 119
+# The participant ids a process started again takes, from the highest down: under
+# ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST rmw_fastrtps announces a participant to ids 0 to 31
+# alone (maxInitialPeersRange 32), so two restarted processes above it never find each other.
+# First starts take ids from 0 up. Once these are spent, a restart takes the lowest free id.
+FRESH_PARTICIPANT_IDS = range(31, 11, -1)
 PARTICIPANT_PROFILE = (
     '<?xml version="1.0" encoding="UTF-8" ?>\n'
     '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
@@ -166,7 +168,7 @@ class Site:
         self.env = {'master': dict(base, ROS_DOMAIN_ID=str(self.master_domain)),
                     'arm': dict(base, ROS_DOMAIN_ID=str(self.arm_domain))}
         self.children = {}
-        self._fresh_ids = iter(range(MAX_PARTICIPANT_ID, 0, -1))
+        self._fresh_ids = iter(FRESH_PARTICIPANT_IDS)
         self.certificates = None
         self.watcher = dds_shm.Watcher()
         self.watcher.start()
@@ -263,12 +265,14 @@ class Site:
         """
         Return a Fast DDS profile (a file in the work directory) with a participant id unused.
 
-        Taken from the top of a domain's ids down, as first starts take them from 0 up. On the
-        id of the process it replaces, and so on its shared-memory port numbers, a restarted
-        process was now and then never reached over shared memory on a loaded machine: Fast
-        DDS 2.14 replaced its port's file while it listened (doc/safety.md).
+        From FRESH_PARTICIPANT_IDS; None once they are spent. On the id of the process it
+        replaces, and so on its shared-memory port numbers, a restarted process was now and then
+        never reached over shared memory on a loaded machine: Fast DDS 2.14 replaced its port's
+        file while it listened (doc/safety.md).
         """
-        participant_id = next(self._fresh_ids)
+        participant_id = next(self._fresh_ids, None)
+        if participant_id is None:
+            return None
         profile = self.work / f'fastdds_participant_{participant_id}.xml'
         profile.write_text(PARTICIPANT_PROFILE.format(participant_id=participant_id))
         return profile
