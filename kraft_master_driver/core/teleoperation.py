@@ -92,7 +92,65 @@ class NoBaseRotation(Exception):
     """Raised by a base_rotation lookup (enable's base_rotation_from_tf): why there is none."""
 
 
-class Teleoperation:
+class Commands:
+    """
+    What the bridge sends, read from its state: the arm's command and the master's wrench.
+
+    Teleoperation's part that computes them; the attributes are Teleoperation's.
+    """
+
+    settings: Settings
+    state: OperatingState
+    motion: Motion
+    force: RampedForce
+    base_rotation: Array
+    arm: Optional[tuple[Pose, float]]
+    reading: Optional[tuple[Array, float]]
+
+    @property
+    def following(self) -> bool:
+        """Whether the arm follows the master now (ENABLED and registered)."""
+        return self.state is OperatingState.ENABLED and self.motion.registration is not None
+
+    def _command(self) -> Optional[tuple[float, ...]]:
+        """Return servo_cp's values (pose mode) or servo_cv's (twist mode) now, or None."""
+        if self.settings.mode == 'pose':
+            pose = self.arm_command()
+            return None if pose is None else (*pose.position, *pose.quaternion)
+        if self.state is OperatingState.DISABLED:
+            return None
+        return tuple(self.arm_twist())
+
+    def arm_command(self) -> Optional[Pose]:
+        """Return the pose the arm should be at now, or None (DISABLED: send nothing)."""
+        if self.state is OperatingState.DISABLED:
+            return None
+        pose = self.motion.command if self.following else self.motion.hold
+        if pose is not None and self.settings.orientation == 'ignore' and self.arm is not None:
+            return Pose(pose.position, self.arm[0].rotation)
+        return pose
+
+    def arm_twist(self) -> Array:
+        """Return the twist command (6: m/s, rad/s, arm base), zeros unless following."""
+        arm = self.arm
+        return self.motion.twist(arm[0]) if self.following and arm is not None else np.zeros(6)
+
+    def contact_wrench(self) -> Array:
+        """Return the environment's wrench on the tool (6, arm base frame), less bias and tool."""
+        assert self.reading is not None and self.arm is not None
+        return self.force.path.contact_wrench(self.reading[0], self.arm[0].rotation)
+
+    def master_wrench(self, now: float) -> Array:
+        """Return the wrench for the master (6, master base frame); zeros unless following."""
+        sensed = None
+        if self.following and self.reading is not None:
+            assert self.arm is not None and self.motion.command is not None  # following
+            sensed = Sensed(self.reading[0], self.arm[0].rotation,
+                            norm(self.motion.command.position - self.arm[0].position))
+        return self.force.wrench(sensed, self.settings.force_feedback, self.base_rotation, now)
+
+
+class Teleoperation(Commands):
     """
     One master/arm pair: hand it each input as it comes and the ticks; it returns what to send.
 
@@ -120,11 +178,6 @@ class Teleoperation:
         self._reported: Optional[tuple[OperatingState, str]] = None  # the state last returned
 
     # -- state -------------------------------------------------------------------------
-
-    @property
-    def following(self) -> bool:
-        """Whether the arm follows the master now (ENABLED and registered)."""
-        return self.state is OperatingState.ENABLED and self.motion.registration is not None
 
     def describe(self) -> str:
         """Return the state as operating_state shows it: 'STATE' or 'STATE: reason'."""
@@ -360,42 +413,3 @@ class Teleoperation:
             assert reading is not None and arm is not None
             self.force.tare(reading[0], arm[0].rotation)
         return refusal
-
-    # -- what to send ------------------------------------------------------------------
-
-    def _command(self) -> Optional[tuple[float, ...]]:
-        """Return servo_cp's values (pose mode) or servo_cv's (twist mode) now, or None."""
-        if self.settings.mode == 'pose':
-            pose = self.arm_command()
-            return None if pose is None else (*pose.position, *pose.quaternion)
-        if self.state is OperatingState.DISABLED:
-            return None
-        return tuple(self.arm_twist())
-
-    def arm_command(self) -> Optional[Pose]:
-        """Return the pose the arm should be at now, or None (DISABLED: send nothing)."""
-        if self.state is OperatingState.DISABLED:
-            return None
-        pose = self.motion.command if self.following else self.motion.hold
-        if pose is not None and self.settings.orientation == 'ignore' and self.arm is not None:
-            return Pose(pose.position, self.arm[0].rotation)
-        return pose
-
-    def arm_twist(self) -> Array:
-        """Return the twist command (6: m/s, rad/s, arm base), zeros unless following."""
-        arm = self.arm
-        return self.motion.twist(arm[0]) if self.following and arm is not None else np.zeros(6)
-
-    def contact_wrench(self) -> Array:
-        """Return the environment's wrench on the tool (6, arm base frame), less bias and tool."""
-        assert self.reading is not None and self.arm is not None
-        return self.force.path.contact_wrench(self.reading[0], self.arm[0].rotation)
-
-    def master_wrench(self, now: float) -> Array:
-        """Return the wrench for the master (6, master base frame); zeros unless following."""
-        sensed = None
-        if self.following and self.reading is not None:
-            assert self.arm is not None and self.motion.command is not None  # following
-            sensed = Sensed(self.reading[0], self.arm[0].rotation,
-                            norm(self.motion.command.position - self.arm[0].position))
-        return self.force.wrench(sensed, self.settings.force_feedback, self.base_rotation, now)
