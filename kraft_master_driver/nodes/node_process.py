@@ -113,6 +113,7 @@ def run_node(make_node, program, summary, table, args=None):
         # The set-up's objects live as long as the process: leave them out of garbage
         # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
         gc.freeze()
+        stop_request.leave_to_rclpy()
         rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -140,9 +141,12 @@ class StopRequest:
     """
     The signals that ask a node to stop: the first ends the spin, later ones change nothing.
 
-    The first raises KeyboardInterrupt once raise_from_now_on() is called, inside run_node's try:
-    one that came earlier (nodes.commands remembers those that came before these handlers) is
-    raised by that call.
+    Until the node spins, the first raises KeyboardInterrupt once raise_from_now_on() is called,
+    inside run_node's try: one that came earlier (nodes.commands remembers those that came
+    before these handlers) is raised by that call. Once it spins, rclpy's handlers end the spin
+    alone (leave_to_rclpy): a KeyboardInterrupt raised inside a callback, between a lock's
+    acquire and the `with` that releases it, left that lock held, and the link emulator's stop
+    waited on it until the shutdown guard ended it with exit 1 (once in a fresh-clone run).
 
     SIGINT and SIGTERM are also caught by rclpy.init's handlers, which wake the executor and
     then call these. rclpy leaves SIGHUP alone, and Python runs a handler only once the main
@@ -172,6 +176,10 @@ class StopRequest:
         self._raising = True
         if self.received:
             raise KeyboardInterrupt
+
+    def leave_to_rclpy(self):
+        """Raise nothing from now on: rclpy's handlers shut the context down and wake the spin."""
+        self._raising = False
 
     @contextlib.contextmanager
     def deferred(self):

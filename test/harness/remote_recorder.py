@@ -57,8 +57,11 @@ def main(topics):
     rclpy.init()
     node = rclpy.create_node('remote_recorder')
     raw = {topic: [] for topic in topics}
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
     for topic in topics:
+        # The bridge's states are few and each counts: best effort may drop one under load (the
+        # DISABLED of a lost link was missing once, beside a busy loop per core).
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE
+                         if topic == 'operating_state' else ReliabilityPolicy.BEST_EFFORT)
         # Raw: a callback only keeps the bytes (1 kHz topics cost little); decoded at the end.
         node.create_subscription(TOPICS[topic][0], topic, _recorder(topic, raw[topic]), qos,
                                  raw=True)

@@ -63,6 +63,28 @@ code = node_process.run_node(None, 'probe', '', {}, ['probe', 'stray'])
 time.sleep(2.0)
 print('returned', code)
 """
+# run_node spinning a node whose first timer callback takes 1.5 s and says when it begins and
+# ends.
+SLOW_CALLBACK = """
+import time
+from kraft_master_driver.nodes import node_process
+import rclpy.node
+
+class SlowCallback(rclpy.node.Node):
+    def __init__(self, _params_files):
+        super().__init__('slow_callback_probe')
+        self.timer = self.create_timer(0.01, self.once)
+
+    def once(self):
+        self.timer.cancel()
+        print('callback begins', flush=True)
+        end = time.monotonic() + 1.5
+        while time.monotonic() < end:
+            time.sleep(0.01)
+        print('callback ends', flush=True)
+
+print('returned', node_process.run_node(SlowCallback, 'probe', '', {}, ['probe']))
+"""
 
 # A parent that starts the command it is given, says its process id, and waits: as a launch or
 # `ros2 run` does. Its output goes to the file named first.
@@ -297,6 +319,23 @@ def test_a_teardown_stuck_in_c_is_ended_by_the_guard_after_zero_torque(install_p
         wait_for(lambda: not any(running.last_command()), timeout=WAIT_S)
     finally:
         running.close()
+
+
+def test_a_stop_signal_lets_the_callback_under_way_finish_then_exits_0():
+    # A KeyboardInterrupt raised inside a callback can leave a lock it took held (the link
+    # emulator's stop then waited on it): the signal ends the spin between callbacks instead.
+    process = subprocess.Popen([sys.executable, '-c', SLOW_CALLBACK], stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True,
+                               env=dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id())))
+    try:
+        assert process.stdout.readline() == 'callback begins\n'
+        process.send_signal(signal.SIGINT)
+        output = process.communicate(timeout=WAIT_S)[0]
+    finally:
+        process.kill()
+        process.wait()
+    assert process.returncode == 0, output
+    assert output == 'callback ends\nreturned 0\n'
 
 
 def test_the_guard_is_cancelled_when_the_process_has_stopped():
