@@ -113,7 +113,7 @@ def run_node(make_node, program, summary, table, args=None):
         # The set-up's objects live as long as the process: leave them out of garbage
         # collection, whose full passes over them took 13 ms here (benchmarks/messages.py).
         gc.freeze()
-        stop_request.leave_to_rclpy()
+        stop_request.leave_to_rclpy(executor)
         rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -129,6 +129,7 @@ def run_node(make_node, program, summary, table, args=None):
         _guard_shutdown()
         if stop_request.seen_by_rclpy:
             _wait_for_rclpy_signal_thread()
+        stop_request.end_waking()
         if node is not None:
             node.destroy_node()  # the driver's zeroes the torques and closes its port first
         try_shutdown()
@@ -144,9 +145,10 @@ class StopRequest:
     Until the node spins, the first raises KeyboardInterrupt once raise_from_now_on() is called,
     inside run_node's try: one that came earlier (nodes.commands remembers those that came
     before these handlers) is raised by that call. Once it spins, rclpy's handlers end the spin
-    alone (leave_to_rclpy): a KeyboardInterrupt raised inside a callback, between a lock's
-    acquire and the `with` that releases it, left that lock held, and the link emulator's stop
-    waited on it until the shutdown guard ended it with exit 1 (once in a fresh-clone run).
+    and this one wakes it (leave_to_rclpy): a KeyboardInterrupt raised inside a callback,
+    between a lock's acquire and the `with` that releases it, left that lock held, and the link
+    emulator's stop waited on it until the shutdown guard ended it with exit 1 (once in a
+    fresh-clone run).
 
     SIGINT and SIGTERM are also caught by rclpy.init's handlers, which wake the executor and
     then call these. rclpy leaves SIGHUP alone, and Python runs a handler only once the main
@@ -160,6 +162,8 @@ class StopRequest:
         self._raising = False
         self.rclpy_handles_signals = False
         self.seen_by_rclpy = False
+        self._signalled = threading.Event()
+        self._waker = None
         for signum in STOP_SIGNALS:
             signal.signal(signum, self._on_signal)
         if stop_signal_remembered():
@@ -177,9 +181,27 @@ class StopRequest:
         if self.received:
             raise KeyboardInterrupt
 
-    def leave_to_rclpy(self):
-        """Raise nothing from now on: rclpy's handlers shut the context down and wake the spin."""
+    def leave_to_rclpy(self, executor):
+        """Raise nothing from now on: rclpy's handlers end the spin; then wake `executor`."""
         self._raising = False
+        self._waker = threading.Thread(target=self._wake_once_shut, args=(executor,),
+                                       name='stop_waker', daemon=True)
+        self._waker.start()
+
+    def end_waking(self):
+        """Return once the thread that wakes the executor (if a signal came) has ended."""
+        self._signalled.set()
+        if self._waker is not None:
+            self._waker.join()
+
+    def _wake_once_shut(self, executor):
+        # rclpy's signal thread wakes the executor before it shuts the context down: an executor
+        # that looked in between, with nothing else to do, waited for good (2 stops in 20).
+        # Not in the handler: it runs in the main thread, which may hold the context's lock.
+        self._signalled.wait()
+        if self.seen_by_rclpy:
+            _wait_for_rclpy_signal_thread()
+            executor.wake()
 
     @contextlib.contextmanager
     def deferred(self):
@@ -202,6 +224,7 @@ class StopRequest:
             self.seen_by_rclpy = self.rclpy_handles_signals
             if self._raising:
                 raise KeyboardInterrupt
+            self._signalled.set()
 
     @staticmethod
     def _hangup_as_sigterm(read_end):
