@@ -153,6 +153,8 @@ class TopicData(NamedTuple):
     strings: _Strings  # fixed layouts: frame_id and name of the first message
     messages: list[object]  # other types: the messages deserialised by rosbags
     malformed: int  # messages skipped because they do not parse as msgtype
+    # (N,) int64: each message's count by its publisher, where an MCAP bag has it; 0: not known
+    sequence: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         """Return the number of messages."""
@@ -176,34 +178,45 @@ class TopicDecoder:
         self.topic, self.msgtype = topic, msgtype
         self._fields = LAYOUTS.get(msgtype)
         self._times: list[NDArray[np.int64]] = []
+        self._sequences: list[NDArray[np.int64]] = []
         # Decoded rows (_Arrays) of a fixed layout, or the messages rosbags deserialised.
         self._parts: list[Any] = []
         # (receive time, strings) of the earliest message decoded
         self._strings: tuple[int, _Strings] | None = None
         self.malformed = 0
 
-    def add(self, times: NDArray[np.int64], block: NDArray[np.uint8]) -> None:
-        """Decode equal-length messages: block (N, length) uint8, log times (N,) int64."""
+    def add(self, times: NDArray[np.int64], block: NDArray[np.uint8],
+            sequences: NDArray[np.int64] | None = None) -> None:
+        """
+        Decode equal-length messages: block (N, length) uint8, log times (N,) int64.
+
+        sequences (N,): each message's count by its publisher, as an MCAP bag keeps it (0: not
+        known, as without them).
+        """
         if self._fields is None:
             self._deserialise(times, block)
             return
+        if sequences is None:
+            sequences = np.zeros(len(times), np.int64)
         while len(block):
             try:
                 layout = _layout(block[0].tobytes(), self._fields)
             except _Malformed:
                 self.malformed += 1
                 times, block = times[1:], block[1:]
+                sequences = sequences[1:]
                 continue
             same = _same_structure(block, layout)
             if self._strings is None or times[0] < self._strings[0]:
                 self._strings = (times[0], layout.strings)
-            if same.all():
-                self._times.append(times)
-                self._parts.append(_decode_rows(block, layout))
+            every = bool(same.all())  # then no copy of the block
+            self._parts.append(_decode_rows(block if every else block[same], layout))
+            self._times.append(times if every else times[same])
+            self._sequences.append(sequences if every else sequences[same])
+            if every:
                 return
-            self._times.append(times[same])
-            self._parts.append(_decode_rows(block[same], layout))
             times, block = times[~same], block[~same]
+            sequences = sequences[~same]
 
     def add_list(self, times: NDArray[np.int64], messages: list[bytes]) -> None:
         """Decode messages given as a list of bytes, received at times (N,) int64."""
@@ -223,6 +236,7 @@ class TopicDecoder:
                 self.malformed += 1
                 continue
             self._times.append(np.array([log_time], np.int64))
+            self._sequences.append(np.zeros(1, np.int64))
             self._parts.append(message)
 
     def result(self) -> TopicData:
@@ -233,12 +247,13 @@ class TopicDecoder:
         log_time = np.concatenate(self._times)
         order = None if np.all(log_time[1:] >= log_time[:-1]) else np.argsort(
             log_time, kind='stable')
+        sequence = np.concatenate(self._sequences)
         if order is not None:
-            log_time = log_time[order]
+            log_time, sequence = log_time[order], sequence[order]
         if self._fields is None:
             messages = self._parts if order is None else [self._parts[i] for i in order]
             return TopicData(self.topic, self.msgtype, log_time, {}, {}, messages,
-                             self.malformed)
+                             self.malformed, sequence)
         fields = {}
         for name in self._parts[0]:
             arrays = [part[name] for part in self._parts]
@@ -246,7 +261,7 @@ class TopicDecoder:
             fields[name] = values if order is None else values[order]
         assert self._strings is not None  # set with the first rows decoded
         return TopicData(self.topic, self.msgtype, log_time, fields, self._strings[1], [],
-                         self.malformed)
+                         self.malformed, sequence)
 
 
 def decode_cdr(messages: list[bytes], msgtype: str, log_times: ArrayLike | None = None,

@@ -83,11 +83,13 @@ class McapWriter:
                  ('topic_type_hash', topic.type_hash)))))
         self.chunk += self.channels[topic_id]
 
-    def write(self, topic_id: int, log_time: int, publish_time: int, data: bytes) -> None:
-        """Add a message to the chunk; write the chunk out when it is full."""
+    def write(self, topic_id: int, log_time: int, publish_time: int, data: bytes,
+              sequence: int = 0) -> None:
+        """Add a message to the chunk (sequence: its publisher's count, 0 if not known)."""
         self.chunk_index[topic_id] += (log_time, len(self.chunk))
         self.chunk += _record_header(0x05, 22 + len(data))
-        self.chunk += _MESSAGE_HEADER_STRUCT.pack(topic_id, 0, log_time, publish_time)
+        self.chunk += _MESSAGE_HEADER_STRUCT.pack(topic_id, sequence & 0xFFFFFFFF, log_time,
+                                                  publish_time)
         self.chunk += data
         self.channel_counts[topic_id] += 1
         for span in (self.chunk_span, self.time_span):

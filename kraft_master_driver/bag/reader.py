@@ -40,7 +40,8 @@ _MESSAGE_RECORD = np.dtype({  # a Message record up to its data
 
 
 def _add_packed(decoder: TopicDecoder, data: NDArray[np.uint8], starts: NDArray[np.int64],
-                lengths: NDArray[np.int64], times: NDArray[np.int64]) -> None:
+                lengths: NDArray[np.int64], times: NDArray[np.int64],
+                sequences: NDArray[np.int64] | None = None) -> None:
     """Decode the messages data[starts[i]:starts[i] + lengths[i]], received at times[i]."""
     for length in np.unique(lengths).tolist():
         rows = np.flatnonzero(lengths == length)
@@ -49,7 +50,8 @@ def _add_packed(decoder: TopicDecoder, data: NDArray[np.uint8], starts: NDArray[
             continue
         # Each row is a window of `length` bytes: one copy, no index array per byte.
         windows = np.lib.stride_tricks.sliding_window_view(data, length)
-        decoder.add(times[rows], windows[starts[rows]])
+        decoder.add(times[rows], windows[starts[rows]],
+                    None if sequences is None else sequences[rows])
 
 
 def _mcap_messages(data: NDArray[np.uint8], offsets: NDArray[np.int64], channels: dict[int, str],
@@ -71,7 +73,8 @@ def _mcap_messages(data: NDArray[np.uint8], offsets: NDArray[np.int64], channels
             decoder.malformed += int(np.count_nonzero(of_channel & ~valid))
             rows = np.flatnonzero(of_channel & valid)
             _add_packed(decoder, data, starts[rows], lengths[rows],
-                        headers['log_time'][rows].astype(np.int64))
+                        headers['log_time'][rows].astype(np.int64),
+                        headers['sequence'][rows].astype(np.int64))
 
 
 def _decompress(data: bytes, compression: str) -> bytes:

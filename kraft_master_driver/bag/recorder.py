@@ -180,12 +180,14 @@ class BagRecorder:
             self.counts[topic] = 0
 
     def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview,
-              publish_time_ns: int | None = None) -> None:
+              publish_time_ns: int | None = None, sequence: int = 0) -> None:
         """
         Write one message's raw CDR bytes, received at `timestamp_ns` (ns since the epoch).
 
         publish_time_ns is when the publisher sent it (the source timestamp; MCAP stores it
-        as the publish time); by default the receive time.
+        as the publish time); by default the receive time. sequence is the publisher's count
+        of the message (DDS's publication sequence number; MCAP stores it, 0: not known), by
+        which a reader tells the messages the recorder lost.
         """
         log_time = int(timestamp_ns)
         publish_time = log_time if publish_time_ns is None else int(publish_time_ns)
@@ -195,7 +197,7 @@ class BagRecorder:
                 raise ValueError(f'{topic}: not added to the bag; call add_topic first')
             if self._storage is None:
                 raise ValueError(f'{self.path}: the bag is closed')
-            self._storage.write(entry[0], log_time, publish_time, bytes(data))
+            self._storage.write(entry[0], log_time, publish_time, bytes(data), sequence)
             self.counts[topic] += 1
             span = self._time_span
             span[0], span[1] = min(span[0], log_time), max(span[1], log_time)

@@ -61,8 +61,9 @@ class Sqlite3Writer:
                 'encoded_message_definition, type_description_hash) VALUES (?, ?, ?, ?)',
                 (topic.msgtype, topic.encoding, topic.definition, topic.type_hash))
 
-    def write(self, topic_id: int, log_time: int, _publish_time: int, data: bytes) -> None:
-        """Add a message (the table has no publish time); commit every `batch` messages."""
+    def write(self, topic_id: int, log_time: int, _publish_time: int, data: bytes,
+              _sequence: int = 0) -> None:
+        """Add a message (no publish time, no sequence); commit every `batch` messages."""
         self.pending.append((log_time, topic_id, data))
         if len(self.pending) >= self.batch:
             self._flush()

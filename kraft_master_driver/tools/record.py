@@ -112,7 +112,8 @@ class Recorder:
 
         def record(data, info):
             received = info['received_timestamp'] or time.time_ns()
-            write(topic, received, data, info['source_timestamp'] or received)
+            write(topic, received, data, info['source_timestamp'] or received,
+                  info['publication_sequence_number'] or 0)
         return record
 
     def close(self):

@@ -97,7 +97,7 @@ def _series(data: Optional[TopicData], *fields: str) -> Optional[Series]:
         return None
     stamp = data.fields.get('stamp')
     return Series(data.topic, data.log_time / 1e9, np.hstack([data.fields[f] for f in fields]),
-                  None if stamp is None else stamp / 1e9)
+                  None if stamp is None else stamp / 1e9, data.sequence)
 
 
 class _Pair:

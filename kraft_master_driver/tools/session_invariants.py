@@ -20,12 +20,17 @@ LATE_RECEIPT_S = 10.0
 
 
 class Series(NamedTuple):
-    """One topic's messages: receive times (N,) in s, values (N, k), header stamps (N,) in s."""
+    """
+    One topic's messages: receive times (N,) in s, values (N, k), header stamps (N,) in s.
+
+    sequence (N,): each message's count by its publisher (0: not known), where the bag has it.
+    """
 
     topic: str
     t: np.ndarray
     values: np.ndarray
     stamp: Optional[np.ndarray] = None
+    sequence: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         """Return the number of messages."""
@@ -141,6 +146,17 @@ def _angles(quaternions: np.ndarray) -> np.ndarray:
     return 2.0 * np.arccos(np.minimum(dots, 1.0))
 
 
+def _messages_apart(series: Series) -> np.ndarray:
+    """Return (N-1,) how many messages the publisher sent from each to the next: 1 if unknown."""
+    apart = np.ones(max(len(series) - 1, 0))
+    if series.sequence is not None:
+        sequence = series.sequence.astype(np.int64)
+        counted = np.diff(sequence)
+        known = (sequence[:-1] > 0) & (sequence[1:] > 0) & (counted > 1)
+        apart[known] = counted[known]
+    return apart
+
+
 def command_steps(command: Series, measured: Optional[Series], limits: Limits
                   ) -> list[Violation]:
     """
@@ -149,15 +165,18 @@ def command_steps(command: Series, measured: Optional[Series], limits: Limits
     The limit is max_linear_speed (max_angular_speed) times max_step_s, the largest step the
     bridge lets its target take between two master poses. A hold where the arm is measured
     (a fault, an enable, a restarted arm recorded late) is no motion of the arm and passes.
+    Two messages their publisher counted n apart (the recorder lost those between) may be n
+    limits apart.
     """
     linear = limits.max_linear_speed * limits.max_step_s
     angular = limits.max_angular_speed * limits.max_step_s
     position, orientation = command.values[:, :3], command.values[:, 3:7]
     steps = np.linalg.norm(np.diff(position, axis=0), axis=1)
     turns = _angles(orientation)
+    apart = _messages_apart(command)
     found = []
-    for index in np.flatnonzero((steps > linear * (1 + 1e-9)) |
-                                (turns > angular * (1 + 1e-9))).tolist():
+    for index in np.flatnonzero((steps > linear * apart * (1 + 1e-9)) |
+                                (turns > angular * apart * (1 + 1e-9))).tolist():
         time = float(command.t[index + 1])
         if (_near_measured(position[index + 1], time, measured, limits)
                 or _measured_next(command, index + 1, measured, limits)):

@@ -6,6 +6,7 @@ import sqlite3
 from harness.type_hashes import generated_type_hash
 from kraft_master_driver.bag.common import (
     DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, typestore, WRENCH_STAMPED)
+from kraft_master_driver.bag.reader import read_topics
 from kraft_master_driver.bag.recorder import (
     _share_directory, BagRecorder, message_definition, STORAGES)
 from kraft_master_driver.bag.samples import simulate_samples, write_samples
@@ -138,6 +139,26 @@ def test_publish_time_is_the_send_time(tmp_path):
         for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
             times.setdefault(channel.topic, []).append((message.log_time, message.publish_time))
     assert times == {'/joint_states': written, '/other': [(5, 5)]}
+
+
+def test_the_publishers_count_is_the_mcap_sequence_and_read_back(tmp_path):
+    # DDS's publication sequence numbers, one lost (4), and one the recorder did not know (0).
+    path = tmp_path / 'counted'
+    message = STORE.serialize_cdr(STORE.types[JOINT_STATE](
+        header=STORE.types['std_msgs/msg/Header'](
+            stamp=STORE.types['builtin_interfaces/msg/Time'](sec=1, nanosec=2), frame_id='b'),
+        name=[], position=np.zeros(0), velocity=np.zeros(0), effort=np.zeros(0)),
+        JOINT_STATE)
+    counts = [1, 2, 3, 5, 0, 2**32 + 6]
+    with BagRecorder(path, 'mcap') as recorder:
+        recorder.add_topic('/joint_states', JOINT_STATE)
+        for log_time, count in enumerate(counts):
+            recorder.write('/joint_states', 100 + log_time, message, sequence=count)
+    with open(path / 'counted_0.mcap', 'rb') as stream:
+        recorded = [m.sequence for _, _, m in make_reader(stream).iter_messages()]
+    assert recorded == [1, 2, 3, 5, 0, 6]  # MCAP's sequence has 32 bits
+    read = read_topics(path, ['/joint_states'])['/joint_states']
+    assert read.sequence.tolist() == recorded
 
 
 def test_sqlite3_schema_is_rosbag2_jazzys(bags):

@@ -10,7 +10,8 @@ from harness.crafted_session import (
 from kraft_master_driver.bag.common import POSE_STAMPED, SessionError, TWIST_STAMPED
 from kraft_master_driver.tools import report
 from kraft_master_driver.tools.session_check import check_session, read_faults
-from kraft_master_driver.tools.session_invariants import frames_lost, Limits
+from kraft_master_driver.tools.session_invariants import (
+    command_steps, frames_lost, Limits, Series)
 import numpy as np
 import pytest
 
@@ -268,6 +269,18 @@ def test_twist_mode_keeps_the_speed_limit_and_a_zero_twist_in_fault(tmp_path):
 
 
 LIMITS = Limits(0.25, 1.0, 0.05, 0.002, 0.05, 0.11, 1e-9, 0.5, 1.0, 2, 0.003, 0.01)
+
+
+def test_a_step_across_commands_the_recorder_lost_may_be_as_many_steps():
+    # 20 mm steps (the limit is 12.5 mm a message) between commands their publisher counted
+    # 1, 2 (one lost between), 3 (two lost) and 0 (not known) apart; the last step is 40 mm.
+    heights = np.array([0.0, 0.02, 0.04, 0.06, 0.08, 0.12])
+    sequence = np.array([1, 2, 4, 7, 0, 2])
+    values = np.column_stack([np.zeros((6, 2)), heights, np.tile([0, 0, 0, 1.0], (6, 1))])
+    series = Series('/servo_cp', np.arange(6.0), values, None, sequence)
+    assert [v.time for v in command_steps(series, None, LIMITS)] == [1.0, 4.0, 5.0]
+    unknown = Series('/servo_cp', np.arange(6.0), values)
+    assert [v.time for v in command_steps(unknown, None, LIMITS)] == [1.0, 2.0, 3.0, 4.0, 5.0]
 
 
 def test_a_restarted_driver_counts_anew_without_a_frame_lost():
