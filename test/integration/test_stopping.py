@@ -333,38 +333,37 @@ def test_a_teardown_stuck_in_c_is_ended_by_the_guard_after_zero_torque(install_p
         running.close()
 
 
-def test_a_stop_signal_lets_the_callback_under_way_finish_then_exits_0():
-    # A KeyboardInterrupt raised inside a callback can leave a lock it took held (the link
-    # emulator's stop then waited on it): the signal ends the spin between callbacks instead.
-    process = subprocess.Popen([sys.executable, '-c', SLOW_CALLBACK], stdout=subprocess.PIPE,
+def interrupted_probe(script, first_line):
+    """
+    Run the Python `script` on a DDS domain of its own; send SIGINT once it prints `first_line`.
+
+    Return its exit code and the output after that line.
+    """
+    process = subprocess.Popen([sys.executable, '-c', script], stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True,
                                env=dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id())))
     try:
-        assert process.stdout.readline() == 'callback begins\n'
+        assert process.stdout.readline() == first_line
         process.send_signal(signal.SIGINT)
         output = process.communicate(timeout=WAIT_S)[0]
     finally:
         process.kill()
         process.wait()
-    assert process.returncode == 0, output
-    assert output == 'callback ends\nreturned 0\n'
+    return process.returncode, output
+
+
+def test_a_stop_signal_lets_the_callback_under_way_finish_then_exits_0():
+    # A KeyboardInterrupt raised inside a callback can leave a lock it took held (the link
+    # emulator's stop then waited on it): the signal ends the spin between callbacks instead.
+    assert interrupted_probe(SLOW_CALLBACK, 'callback begins\n') == (
+        0, 'callback ends\nreturned 0\n')
 
 
 def test_a_node_with_nothing_to_do_stops_at_sigint_every_time():
     # rclpy's signal thread wakes the executor before it shuts the context down; without a
     # wake after the shutdown, 2 stops in 20 waited for good.
     for _ in range(10):
-        process = subprocess.Popen([sys.executable, '-c', IDLE_NODE], stdout=subprocess.PIPE,
-                                   stderr=subprocess.STDOUT, text=True,
-                                   env=dict(os.environ, ROS_DOMAIN_ID=str(next_domain_id())))
-        try:
-            assert process.stdout.readline() == 'spinning\n'
-            process.send_signal(signal.SIGINT)
-            output = process.communicate(timeout=WAIT_S)[0]
-        finally:
-            process.kill()
-            process.wait()
-        assert (process.returncode, output) == (0, 'returned 0\n')
+        assert interrupted_probe(IDLE_NODE, 'spinning\n') == (0, 'returned 0\n')
 
 
 def test_the_guard_is_cancelled_when_the_process_has_stopped():
