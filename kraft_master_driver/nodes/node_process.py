@@ -163,7 +163,12 @@ class StopRequest:
         self.rclpy_handles_signals = False
         self.seen_by_rclpy = False
         self._signalled = threading.Event()
-        self._waker = None
+        self._executor = None
+        # Started before the node raises its own threads' priorities, so that it keeps the
+        # default one (a thread inherits its maker's).
+        self._waker = threading.Thread(target=self._wake_once_shut, name='stop_waker',
+                                       daemon=True)
+        self._waker.start()
         for signum in STOP_SIGNALS:
             signal.signal(signum, self._on_signal)
         if stop_signal_remembered():
@@ -183,25 +188,22 @@ class StopRequest:
 
     def leave_to_rclpy(self, executor):
         """Raise nothing from now on: rclpy's handlers end the spin; then wake `executor`."""
+        self._executor = executor
         self._raising = False
-        self._waker = threading.Thread(target=self._wake_once_shut, args=(executor,),
-                                       name='stop_waker', daemon=True)
-        self._waker.start()
 
     def end_waking(self):
         """Return once the thread that wakes the executor (if a signal came) has ended."""
         self._signalled.set()
-        if self._waker is not None:
-            self._waker.join()
+        self._waker.join()
 
-    def _wake_once_shut(self, executor):
+    def _wake_once_shut(self):
         # rclpy's signal thread wakes the executor before it shuts the context down: an executor
         # that looked in between, with nothing else to do, waited for good (2 stops in 20).
         # Not in the handler: it runs in the main thread, which may hold the context's lock.
         self._signalled.wait()
-        if self.seen_by_rclpy:
+        if self.seen_by_rclpy and self._executor is not None:
             _wait_for_rclpy_signal_thread()
-            executor.wake()
+            self._executor.wake()
 
     @contextlib.contextmanager
     def deferred(self):
