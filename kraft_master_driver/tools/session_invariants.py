@@ -255,7 +255,8 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Vio
     Check that the master's torque is zero from torque_zero_within after each such fault.
 
     Up to its end less state_grace: the message that ends a fault (an ENABLED, say) and the
-    first torque after it may be received in either order.
+    first torque after it may be received in either order. A torque stamped before
+    torque_zero_within had passed was applied then, however late the recorder received it.
     """
     found = []
     size = np.max(np.abs(np.nan_to_num(effort.values, nan=np.inf)), axis=1, initial=0.0)
@@ -265,7 +266,7 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Vio
         start = fault.start + limits.torque_zero_within
         rows = np.flatnonzero((effort.t >= start) &
                               (effort.t <= fault.end - limits.state_grace) &
-                              (size > limits.torque_zero))
+                              (size > limits.torque_zero) & ~_sent_before(effort, start))
         found += _first(effort, rows, lambda row: (
             f'torque {size[row]:.4f} N*m {effort.t[row] - fault.start:.3f} s after '
             f'{fault.kind} ({fault.side}) began at {fault.start:.3f} s: zero required '

@@ -248,13 +248,15 @@ class FaultSession:
                  record=RECORD_LENGTH):
         """Start everything; `record` is the number of commands the simulator keeps."""
         # The simulated device stands in for hardware: it must answer within reply_timeout
-        # even while this process's main thread is busy, so hand the GIL over often.
+        # even while this process's main thread is busy, so hand the GIL over often; and
+        # while the machine is busy, so its thread runs at the driver loop's real-time priority.
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(SIMULATOR_SWITCH_INTERVAL_S)
         self.domain_id = next_domain_id()
         # A namespace of its own: other test runs on this machine may share the domain.
         self.namespace = f'/faults_{os.getpid()}_{next(SESSION_NUMBERS)}'
-        self.simulator = SimulatedKraftMaster(arm='right', operator='hold', record=record)
+        self.simulator = SimulatedKraftMaster(arm='right', operator='hold', record=record,
+                                              priority=PARAMETERS['loop_priority'].default)
         self.port = self.simulator.start()
         # Only what the suite needs: harness.driver.RosClient's three 200 Hz subscriptions
         # would compete with the simulator thread of this process.

@@ -5,9 +5,10 @@ import dataclasses
 import json
 
 from harness.crafted_session import (
-    BREAKS, ENABLE_AT, energy, FAULT_AT, JUMP_AT, LOST_AT, NS, pose, session_messages, state,
-    STRING, T0, TYPES, write_session)
-from kraft_master_driver.bag.common import POSE_STAMPED, SessionError, TWIST_STAMPED
+    BREAKS, ENABLE_AT, energy, FAULT_AT, joints, JUMP_AT, LOST_AT, NS, pose, session_messages,
+    state, STRING, T0, TYPES, write_session)
+from kraft_master_driver.bag.common import (
+    JOINT_STATE, POSE_STAMPED, SessionError, TWIST_STAMPED)
 from kraft_master_driver.tools import report
 from kraft_master_driver.tools.session_check import check_session, read_faults
 from kraft_master_driver.tools.session_invariants import (
@@ -156,6 +157,23 @@ def test_a_given_fault_that_makes_the_force_untrue_needs_zero_torque(tmp_path):
     assert check_session(tmp_path / 'bag', faults=[master]).violations == []
     told = dict(blackout, force_untrue=False)
     assert check_session(tmp_path / 'bag', faults=[told]).violations == []
+
+
+@pytest.mark.parametrize('stamped_after, found', [(0.1, False), (0.12, True)])
+def test_a_torque_received_late_in_a_fault_counts_when_it_was_stamped(
+        tmp_path, stamped_after, found):
+    # A torque received 0.3 s into a fault that makes the force untrue: stamped 0.1 s into it
+    # (a recorder behind), the driver applied it within torque_zero_within (0.11 s); stamped
+    # 0.12 s into it, after.
+    messages = session_messages()
+    late = (f'{NS}/joint_states', JOINT_STATE, FAULT_AT + 0.3,
+            joints(FAULT_AT + stamped_after, [f'j{i}' for i in range(6)], np.zeros(6),
+                   np.full(6, 0.2)))
+    write_session(tmp_path / 'bag', messages=messages + [late])
+    lines = check_session(tmp_path / 'bag').violations
+    assert bool(lines) == found, lines
+    assert all('torque 0.2000 N*m 0.300 s after recorded: bridge FAULT' in line
+               for line in lines), lines
 
 
 @pytest.mark.parametrize('late, found', [(0.03, False), (0.2, True)])
