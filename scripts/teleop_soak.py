@@ -30,7 +30,7 @@ import time
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
-from harness.soak_site import LINKS  # noqa: E402  (test/ on the path first)
+from harness.soak_site import LINKS, MAX_WRENCH_AGE_S  # noqa: E402  (test/ on the path first)
 from harness.teleop_soak import Soak  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -47,7 +47,8 @@ def check(soak, bag):
         from kraft_master_driver.tools.session_check import check_session
     except ImportError as error:
         return None, {'not checked': f'no session checker in this checkout ({error})'}
-    result = check_session(bag, faults=soak.faults, settings={'passivity': True})
+    result = check_session(bag, faults=soak.faults, settings={
+        'passivity': True, 'max_wrench_age': MAX_WRENCH_AGE_S})
     return result.violations, result.summary
 
 

@@ -17,7 +17,8 @@ import os
 from typing import Any, Iterable, Mapping, NamedTuple, Optional
 
 from kraft_master_driver.bag.common import (
-    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, TWIST_STAMPED, VECTOR3_STAMPED)
+    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, SessionError, TWIST_STAMPED, VECTOR3_STAMPED,
+    WRENCH_STAMPED)
 from kraft_master_driver.bag.decoding import TopicData
 from kraft_master_driver.bag.reader import bag_topics, read_topics
 from kraft_master_driver.core.teleoperation_settings import MAX_STEP, Settings
@@ -31,12 +32,13 @@ FORCE_UNTRUE_SIDES = ('arm', 'link')  # by default: faults that make the master'
 TOPICS = {'servo_cp': POSE_STAMPED, 'servo_cv': TWIST_STAMPED, 'measured_cp': POSE_STAMPED,
           'operating_state': 'std_msgs/msg/String', 'joint_states': JOINT_STATE,
           'pots': JOINT_STATE, 'master_energy': VECTOR3_STAMPED,
-          'slave_energy': VECTOR3_STAMPED}
+          'slave_energy': VECTOR3_STAMPED, 'wrench': WRENCH_STAMPED}
 # The bridge's own defaults where the bag does not hold its parameters.
 DEFAULTS: dict[str, Any] = {
     'max_linear_speed': Settings().max_linear_speed, 'max_angular_speed':
     Settings().max_angular_speed, 'max_step_s': MAX_STEP, 'hold_tolerance': 0.002,
-    'state_grace': 0.05, 'torque_zero_within': 0.110, 'torque_zero': 1e-9,
+    'state_grace': 0.05, 'torque_zero_within': 0.110,
+    'max_wrench_age': 0.1, 'torque_zero': 1e-9,
     'max_torque_step': 0.5, 'come_back_window': 0.2, 'frame_tolerance': 2,
     'energy_tolerance': 0.003, 'energy_grace': 0.01, 'frame_gap': 0.1, 'passivity': None}
 CHECKS = ('command steps', 'holds after a fault', 'torque zero after a fault',
@@ -111,6 +113,7 @@ class _Pair:
         self.twist_command = _series(get('servo_cv'), 'linear', 'angular')
         self.measured = _series(get('measured_cp'), 'position', 'orientation')
         self.effort = _series(get('joint_states'), 'effort')
+        self.wrench = _series(get('wrench'), 'force', 'torque')
         self.pots = get('pots')
         self.master_energy = _series(get('master_energy'), 'vector')
         self.slave_energy = _series(get('slave_energy'), 'vector')
@@ -171,7 +174,7 @@ def _check_pair(pair: _Pair, faults: list[Fault], limits: Limits, passivity: Opt
         ran(CHECKS[1], invariants.holds(pair.periods, command, command is pair.twist_command,
                                         limits))
     if pair.effort is not None:
-        ran(CHECKS[2], invariants.torque_zero(faults, pair.effort, limits))
+        ran(CHECKS[2], invariants.torque_zero(faults, pair.effort, limits, pair.wrench))
         # Force comes back at a fault's end, and at the enable that ends a FAULT after it.
         recoveries = {f.end: f for f in faults}
         for fault in faults:

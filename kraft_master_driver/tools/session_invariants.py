@@ -78,6 +78,7 @@ class Limits(NamedTuple):
     hold_tolerance: float  # m: a command this close to the measured arm holds it where it is
     state_grace: float  # s: messages of two topics may be received this far out of order
     torque_zero_within: float  # s after a fault that makes the force untrue
+    max_wrench_age: float  # s: the driver refuses older wrenches (the news of the arm's side)
     torque_zero: float  # N*m: an effort this small is zero
     max_torque_step: float  # N*m per message when the force comes back
     come_back_window: float  # s from the first torque after a fault in which its rise counts
@@ -250,13 +251,17 @@ def holds(periods: list[Period], command: Series, twist: bool, limits: Limits
     return found
 
 
-def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Violation]:
+def torque_zero(faults: list[Fault], effort: Series, limits: Limits,
+                wrench: Optional[Series] = None) -> list[Violation]:
     """
     Check that the master's torque is zero from torque_zero_within after each such fault.
 
     Up to its end less state_grace: the message that ends a fault (an ENABLED, say) and the
     first torque after it may be received in either order. A torque stamped before
     torque_zero_within had passed was applied then, however late the recorder received it.
+    A fault on the arm's side reaches the master with the wrench (as the master's side
+    received it): from the first one stamped after the fault began, up to max_wrench_age
+    later (an older one the driver refuses).
     """
     found = []
     size = np.max(np.abs(np.nan_to_num(effort.values, nan=np.inf)), axis=1, initial=0.0)
@@ -264,13 +269,17 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits) -> list[Vio
         if not fault.force_untrue:
             continue
         start = fault.start + limits.torque_zero_within
+        if fault.side == 'arm' and wrench is not None and wrench.stamp is not None:
+            news = wrench.t[(wrench.stamp >= fault.start) & (wrench.t >= fault.start)]
+            start += min(float(news.min()) - fault.start if news.size else 0.0,
+                         limits.max_wrench_age)
         rows = np.flatnonzero((effort.t >= start) &
                               (effort.t <= fault.end - limits.state_grace) &
                               (size > limits.torque_zero) & ~_sent_before(effort, start))
         found += _first(effort, rows, lambda row: (
             f'torque {size[row]:.4f} N*m {effort.t[row] - fault.start:.3f} s after '
             f'{fault.kind} ({fault.side}) began at {fault.start:.3f} s: zero required '
-            f'from {1e3 * limits.torque_zero_within:.0f} ms on'))
+            f'from {1e3 * (start - fault.start):.0f} ms on'))
     return found
 
 

@@ -46,6 +46,7 @@ START_S = 120.0  # a start-up on a loaded machine
 STOP_S = 30.0  # a node's own guard ends a stuck shutdown in 10 s
 UNANSWERED_S = 5.0  # an enable request the bridge has not answered will not be answered
 MAX_DELAY_S = 0.5  # the largest one-way delay step: the driver admits wrenches that old
+MAX_WRENCH_AGE_S = 0.1 + MAX_DELAY_S  # the driver's max_wrench_age
 # The bridge as the demo runs it on the Panda (2 s timeouts for a loaded machine), passivity on,
 # its box 5 cm taller: a stale pose that comes back registers the master wherever the hand is,
 # and the arm's height drifts by up to the touch's depth each time.
@@ -187,7 +188,7 @@ class Site:
         assert self.port, 'the simulated master did not start'
         self.add('driver', [*PYTHON, 'kraft_master_driver.nodes.driver', '--ros-args',
                             '-p', f'port:={self.port}', *ros_parameters(DRIVER),
-                            '-p', f'max_wrench_age:={0.1 + MAX_DELAY_S}'], 'master')
+                            '-p', f'max_wrench_age:={MAX_WRENCH_AGE_S}'], 'master')
         if self.link == 'emulator':
             self.add('link', [*PYTHON, 'kraft_master_driver.nodes.link_emulator', '--ros-args',
                               '-p', f'slave_domain_id:={self.arm_domain}', '-p', f'seed:={seed}',

@@ -8,9 +8,10 @@ from harness.crafted_session import (
     BREAKS, ENABLE_AT, energy, FAULT_AT, joints, JUMP_AT, LOST_AT, NS, pose, session_messages,
     state, STRING, T0, TYPES, write_session)
 from kraft_master_driver.bag.common import (
-    JOINT_STATE, POSE_STAMPED, SessionError, TWIST_STAMPED)
+    JOINT_STATE, POSE_STAMPED, SessionError, TWIST_STAMPED, WRENCH_STAMPED)
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.tools import report
-from kraft_master_driver.tools.session_check import check_session, read_faults
+from kraft_master_driver.tools.session_check import check_session, DEFAULTS, read_faults
 from kraft_master_driver.tools.session_invariants import (
     command_steps, frames_lost, Limits, Series)
 import numpy as np
@@ -176,6 +177,35 @@ def test_a_torque_received_late_in_a_fault_counts_when_it_was_stamped(
                for line in lines), lines
 
 
+def zero_wrench(t):
+    """Return a WrenchStamped of zeros stamped `t`."""
+    zero = TYPES['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
+    return TYPES[WRENCH_STAMPED](header=pose(t, (0, 0, 0)).header,
+                                 wrench=TYPES['geometry_msgs/msg/Wrench'](force=zero, torque=zero))
+
+
+@pytest.mark.parametrize('side, max_wrench_age, found', [
+    ('arm', 0.5, False), ('arm', 0.1, True), ('link', 0.5, True)])
+def test_a_fault_on_the_arms_side_reaches_the_master_with_the_wrench(
+        tmp_path, side, max_wrench_age, found):
+    # The wrench reaches the master's side 0.3 s after its stamp. A fault of the arm's side
+    # from T0 + 0.8 s to T0 + 1.2 s (the torque on throughout) reaches the driver with the
+    # first wrench stamped after it began: torque zero is due from 0.41 s into it, past its
+    # end; not later than max_wrench_age, though, nor for a fault of the link's side, which
+    # the driver meets itself.
+    wrenches = [(f'{NS}/wrench', WRENCH_STAMPED, T0 + 0.3 + k / 200, zero_wrench(T0 + k / 200))
+                for k in range(800)]
+    write_session(tmp_path / 'bag', messages=session_messages() + wrenches)
+    fault = {'kind': 'a fault', 'side': side, 'start': T0 + 0.8, 'end': T0 + 1.2}
+    lines = check_session(tmp_path / 'bag', faults=[fault],
+                          settings={'max_wrench_age': max_wrench_age}).violations
+    assert bool(lines) == found, lines
+
+
+def test_the_checkers_max_wrench_age_is_the_drivers_default():
+    assert DEFAULTS['max_wrench_age'] == PARAMETERS['max_wrench_age'].default
+
+
 @pytest.mark.parametrize('late, found', [(0.03, False), (0.2, True)])
 def test_an_enable_received_after_the_first_torque_and_command_is_out_of_order_within_grace(
         tmp_path, late, found):
@@ -286,7 +316,7 @@ def test_twist_mode_keeps_the_speed_limit_and_a_zero_twist_in_fault(tmp_path):
     assert len(lines) == 1 and lines[0].startswith('101.500 s /right/servo_cv: a twist of')
 
 
-LIMITS = Limits(0.25, 1.0, 0.05, 0.002, 0.05, 0.11, 1e-9, 0.5, 1.0, 2, 0.003, 0.01)
+LIMITS = Limits(0.25, 1.0, 0.05, 0.002, 0.05, 0.11, 0.1, 1e-9, 0.5, 1.0, 2, 0.003, 0.01)
 
 
 def test_a_step_across_commands_the_recorder_lost_may_be_as_many_steps():
