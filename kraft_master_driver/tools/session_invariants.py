@@ -260,8 +260,9 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits,
     first torque after it may be received in either order. A torque stamped before
     torque_zero_within had passed was applied then, however late the recorder received it.
     A fault on the arm's side reaches the master with the wrench (as the master's side
-    received it): from the first one stamped after the fault began, up to max_wrench_age
-    later (an older one the driver refuses).
+    received it): from the first one stamped after the fault began, if it came within
+    max_wrench_age (an older one the driver refuses; none, as when the bridge died, and the
+    driver's own timeouts zero the torque).
     """
     found = []
     size = np.max(np.abs(np.nan_to_num(effort.values, nan=np.inf)), axis=1, initial=0.0)
@@ -270,9 +271,9 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits,
             continue
         start = fault.start + limits.torque_zero_within
         if fault.side == 'arm' and wrench is not None and wrench.stamp is not None:
-            news = wrench.t[(wrench.stamp >= fault.start) & (wrench.t >= fault.start)]
-            start += min(float(news.min()) - fault.start if news.size else 0.0,
-                         limits.max_wrench_age)
+            news = wrench.t[(wrench.stamp >= fault.start) & (wrench.t >= fault.start) &
+                            (wrench.t <= fault.start + limits.max_wrench_age)]
+            start += float(news.min()) - fault.start if news.size else 0.0
         rows = np.flatnonzero((effort.t >= start) &
                               (effort.t <= fault.end - limits.state_grace) &
                               (size > limits.torque_zero) & ~_sent_before(effort, start))

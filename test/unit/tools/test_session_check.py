@@ -191,8 +191,8 @@ def test_a_fault_on_the_arms_side_reaches_the_master_with_the_wrench(
     # The wrench reaches the master's side 0.3 s after its stamp. A fault of the arm's side
     # from T0 + 0.8 s to T0 + 1.2 s (the torque on throughout) reaches the driver with the
     # first wrench stamped after it began: torque zero is due from 0.41 s into it, past its
-    # end; not later than max_wrench_age, though, nor for a fault of the link's side, which
-    # the driver meets itself.
+    # end; but not if that wrench came later than max_wrench_age (the driver refuses it, and
+    # meets the fault itself), nor for a fault of the link's side.
     wrenches = [(f'{NS}/wrench', WRENCH_STAMPED, T0 + 0.3 + k / 200, zero_wrench(T0 + k / 200))
                 for k in range(800)]
     write_session(tmp_path / 'bag', messages=session_messages() + wrenches)
