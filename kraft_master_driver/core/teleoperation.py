@@ -337,6 +337,10 @@ class Teleoperation(Commands):
         if self.following and hold is not None:
             self.reason = hold[0]
             self.motion.hold_here(for_arm=hold[1])
+            if hold[1]:
+                # The poses the arm's side sends next may be ones that waited on the way, their
+                # stamps going on from the last: only those taken from now on tell it still.
+                self.arm_settling.restart()
 
     # -- inputs ------------------------------------------------------------------------
 

@@ -58,6 +58,10 @@ class Settling:
                 or _apart(pose, self._since[0])):
             self._since = (pose, stamp)
 
+    def restart(self) -> None:
+        """Forget the poses so far: what the arm did since the last one is not known."""
+        self._since = None
+
     @property
     def still(self) -> bool:
         """Return whether the arm has stayed near one pose for SETTLE_TIME."""
