@@ -349,7 +349,7 @@ def test_record_command_closes_a_complete_bag(install_prefix, right_arm, tmp_pat
 
 
 def test_a_recorder_stopped_for_two_seconds_loses_no_message(install_prefix, right_arm,
-                                                             tmp_path):
+                                                               tmp_path):
     # SIGSTOP stops the recorder's DDS threads too: what the driver sent meanwhile reaches the
     # bag only if the driver's writers kept it (2 s is 400 messages a topic at 200 Hz; writers
     # that kept 10 lost 394 of them).
