@@ -25,10 +25,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 POT_NAMES = [f'pot{i}' for i in range(1, 7)]
-# The state's writers keep this many messages for a reliable reader that falls behind: a
-# recorder starved for a second at 1 kHz still gets every one (at depth 10 the soak's lost
-# pot frames whenever its recorder stalled for more than 10 ms).
-STATE_HISTORY = 1000
 VECTOR3_STAMPED = cdr.StampedDoublesDecoder('Vector3Stamped', 3)
 
 
@@ -40,8 +36,7 @@ class StateTopics:
         self.config = config
         self.master_port = master_port
         self._node = node
-        self._qos = state_qos = QoSProfile(depth=STATE_HISTORY,
-                                           reliability=ReliabilityPolicy.RELIABLE)
+        self._qos = state_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         # No QoS event handlers on the publishers: each one is work for every executor wake-up.
         self._quiet = quiet = PublisherEventCallbacks(use_default_callbacks=False)
         (self.joint_pub, self.pose_pub, self.pots_pub, self.energy_pub, self.diagnostics) = (
