@@ -13,6 +13,7 @@ import time
 
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from harness import dds_shm, PACKAGE, REPO
+from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.simulation.master.simulator import SimulatedKraftMaster
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -218,8 +219,11 @@ class DriverSession:
                  wrapper=(), params_file=None, simulator_options=None):
         """Start all three; the client listens in the driver's namespace."""
         self.domain_id = domain_id or next_domain_id()
-        self.simulator = SimulatedKraftMaster(arm=arm, operator='hold',
-                                              **(simulator_options or {}))
+        # The device stands in for hardware, which answers whatever the machine's load: its
+        # thread at the driver loop's real-time priority. Starved for over 100 ms, it runs its
+        # command watchdog before it reads the commands waiting, and zeroes the torques.
+        self.simulator = SimulatedKraftMaster(arm=arm, operator='hold', **{
+            'priority': PARAMETERS['loop_priority'].default, **(simulator_options or {})})
         self.port = port = self.simulator.start()
         parameters = [('port', port), ('arm', arm), *parameters]
         self.driver = DriverProcess(prefix, self.domain_id, parameters, namespace=namespace,
