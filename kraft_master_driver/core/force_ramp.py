@@ -42,3 +42,32 @@ class ForceRamp:
             self._ramped_ns += min(max(now_ns - last, 0), round(RAMP_STEP_LIMIT * ramp_ns))
         self.share = min(1.0, self._ramped_ns / ramp_ns) if ramp_ns else 1.0
         return self.share
+
+
+class ShareSlew:
+    """
+    The contact model's share of the force (0..1), moving toward its goal over the ramp's time.
+
+    When the direct wrench goes stale the model takes the whole force, and gives it back when a
+    wrench comes again: without the slew, the model's force would step in (or out) at once.
+    """
+
+    def __init__(self) -> None:
+        """Start at no share; the first step takes its goal at once."""
+        self.share = 0.0
+        self._last_cycle_ns: int | None = None
+
+    def step(self, goal: float, now_ns: int, ramp_ns: int) -> float:
+        """
+        Move toward `goal` by the time since the last cycle over ramp_ns, and return the share.
+
+        As for the ramp, a late cycle moves it by at most RAMP_STEP_LIMIT; ramp_ns 0: at once.
+        """
+        last, self._last_cycle_ns = self._last_cycle_ns, now_ns
+        if last is None or not ramp_ns:
+            self.share = goal
+            return goal
+        step = min(max(now_ns - last, 0) / ramp_ns, RAMP_STEP_LIMIT)
+        gap = goal - self.share
+        self.share = goal if abs(gap) <= step else self.share + (step if gap > 0 else -step)
+        return self.share

@@ -22,7 +22,7 @@ import threading
 from typing import Any, NamedTuple, Protocol, TypeVar
 
 from kraft_master_driver.core import kinematics
-from kraft_master_driver.core.force_ramp import ForceRamp
+from kraft_master_driver.core.force_ramp import ForceRamp, ShareSlew
 from kraft_master_driver.core.validation import (
     checked_changes, choice, finite_real, finite_reals, flag)
 from kraft_master_driver.core.wrench_admission import (
@@ -188,6 +188,7 @@ class ForceReflection:
         self._expired: WrenchInput | None = None
         self._was_saturated = False
         self._ramp = ForceRamp()
+        self._model_share = ShareSlew()
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
         self._watchdog_trips = 0
         self._age_expiries = 0
@@ -286,7 +287,8 @@ class ForceReflection:
         model: the contact model's force (N, 3, base frame; core/contact_rendering.py) and its
         share of the force (0..1, core/force_mode.py): the wrench is the direct one times
         (1 - share) plus force_scale times the model's times share, then the centre terms; with
-        no direct wrench to give (none yet, stale, refused) the model's alone.
+        no direct wrench to give (none yet, stale, refused) the model's alone. The share used
+        moves to its goal, and back, over force_ramp_time (ShareSlew): no step at the hand.
         holding: the motor torques (N*m, actuator axes 1..5) that hold the arm up against its
         weight (core/gravity.py): added to a wrench being reflected, or alone before any
         wrench has come; a stale or refused wrench, clear() and disabled force give zero, the
@@ -299,10 +301,11 @@ class ForceReflection:
         if not settings.enabled:
             self._ramp.restart()
             return self._idle(DISABLED, port, now_ns)
-        share = 0.0 if model is None else model[1]
-        state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, share)
+        goal = 0.0 if model is None else model[1]
+        state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, goal)
         if wrench is None and model is not None and any(model[0]):
-            share = 1.0  # no direct force to blend with: the model's alone, not a step to zero
+            goal = 1.0  # no direct force to blend with: the model's alone, not a step to zero
+        share = self._model_share.step(goal, now_ns, hot.ramp_ns)
         if share > 0.0:
             assert model is not None
             scaled = share * settings.force_scale

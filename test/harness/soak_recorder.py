@@ -25,7 +25,7 @@ from rclpy.signals import SignalHandlerOptions
 # What the checker and the figure read, and the wrench that reached the driver: a Python
 # recorder that takes more falls behind on a loaded machine and loses messages.
 MASTER_TOPICS = ('/joint_states', '/pots', '/master_energy', '/wrench', '/slave_energy',
-                 '/diagnostics')
+                 '/contact_model', '/diagnostics')
 ARM_TOPICS = ('/servo_cp', '/measured_cp', '/operating_state')
 
 

@@ -210,3 +210,24 @@ def test_the_force_blends_direct_and_model_and_takes_the_model_alone_without_a_w
     assert stale.model_share == 1.0 and stale.joint[2] == pytest.approx(1.5)
     nothing = reflection.compute(rotation, jacobian, 1_000_000_000, model=((0.0, 0.0, 0.0), 0.0))
     assert nothing.state != ACTIVE and not any(nothing.actuator)
+
+
+def test_the_models_force_comes_in_and_goes_out_over_the_ramp_as_the_wrench_stops_and_comes():
+    # Direct mode (share 0): the arm's sensor feels nothing and the model holds a wall at 1.5 N.
+    # A gap in the wrenches must not step the model's force in at once, nor a wrench coming
+    # again step it out (which fits most of the session soak's torque rises).
+    from kraft_master_driver.core.force_reflection import ForceReflection
+    from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchInput
+    reflection = ForceReflection(enabled=True, force_ramp_time=0.05)
+    rotation = np.eye(3).tolist()
+    jacobian = np.eye(6).tolist()
+    ms = 1_000_000
+    felt = []
+    for cycle in range(400):
+        if cycle < 100 or cycle >= 250:  # a gap of 150 ms: stale after 50 ms
+            reflection.hold(WrenchInput((0.0,) * 6, BASE_FRAME, cycle * ms))
+        output = reflection.compute(rotation, jacobian, cycle * ms,
+                                    model=((0.0, 0.0, 1.5), 0.0))
+        felt.append(output.joint[2])  # th3's column: fz
+    assert felt[99] == 0.0 and felt[249] == pytest.approx(1.5) and felt[-1] == 0.0
+    assert max(np.abs(np.diff(felt))) <= 1.5 * 0.001 / 0.05 + 1e-9  # 1 ms of the 50 ms ramp
