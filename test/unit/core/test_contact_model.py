@@ -215,7 +215,7 @@ def test_the_force_blends_direct_and_model_and_takes_the_model_alone_without_a_w
 def test_the_models_force_comes_in_and_goes_out_over_the_ramp_as_the_wrench_stops_and_comes():
     # Direct mode (share 0): the arm's sensor feels nothing and the model holds a wall at 1.5 N.
     # A gap in the wrenches must not step the model's force in at once, nor a wrench coming
-    # again step it out (which fits most of the session soak's torque rises).
+    # again step it out.
     from kraft_master_driver.core.force_reflection import ForceReflection
     from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchInput
     reflection = ForceReflection(enabled=True, force_ramp_time=0.05)
