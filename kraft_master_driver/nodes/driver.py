@@ -10,6 +10,7 @@ the parts together: parameters, device, force reflection, topics, loop.
 """
 import sys
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from kraft_master_driver.core import kinematics, realtime
@@ -302,6 +303,7 @@ class KraftMasterNode(Node):
         device_stats = self.device.stats
         self._warn_link_errors(device_stats)
         admission, output = self.inputs.admission, self.loop.output
+        taken_ns = self.inputs.wrench_taken_ns
         level, message, values = driver_diagnostics.driver_diagnostics(DriverReadings(
             statistics=self.loop.statistics, scheduler=self.loop.scheduler,
             executor_scheduler=self.loop.executor_scheduler,
@@ -311,7 +313,8 @@ class KraftMasterNode(Node):
             wrench_sources=admission.sources, sources_refused=admission.sources_refusal(),
             calibration=self.calibration.source, port=self.config['port'],
             master_port=self.master_port, slave_energy=self.inputs.slave_energy,
-            slave_link=self.inputs.slave_link.summary()))
+            slave_link=self.inputs.slave_link.summary(),
+            wrench_age=None if taken_ns is None else (time.monotonic_ns() - taken_ns) / 1e9))
         port = self.config['port']
         status = DiagnosticStatus(
             name=f'{self.get_fully_qualified_name()}: {self.arm} Kraft Master',

@@ -9,6 +9,9 @@ DiagnosticStatus).
 from typing import NamedTuple
 
 OK, WARN, ERROR = 'ok', 'warn', 'error'
+# s without a wrench while a publisher is matched: the middleware may deliver nothing (a soak
+# saw a driver take none for 27 minutes while a recorder on the same domain took them all).
+SILENT_SOURCE_S = 1.0
 
 
 class DriverReadings(NamedTuple):
@@ -29,6 +32,7 @@ class DriverReadings(NamedTuple):
     slave_link: tuple  # link_quality.LinkMonitor.summary() of slave_energy, or None
     memory_lock: str = 'not locked'  # whether the loop's memory lock was granted, and why not
     executor_scheduler: str = 'normal'  # the executor thread's scheduling, as the loop set it
+    wrench_age: float | None = None  # s since the newest wrench was taken, None before the first
 
 
 def milliseconds(name, median_p99_max):
@@ -64,6 +68,8 @@ def driver_diagnostics(readings):
         'force output': 'enabled' if force.enabled else 'disabled',
         'force state': readings.force_state or 'no_state',
         'wrench sources': str(readings.wrench_sources),
+        'wrench age (s)': ('none yet' if readings.wrench_age is None
+                           else f'{readings.wrench_age:.3f}'),
         'calibration': readings.calibration,
         'port': readings.port,
     }
@@ -75,6 +81,10 @@ def driver_diagnostics(readings):
     elif readings.sources_refused is not None:
         level, message = WARN, f'torques zero: {readings.sources_refused}'
         values['force state'] = 'several_sources'
+    elif (force.enabled and readings.wrench_sources and readings.wrench_age is not None
+          and readings.wrench_age > SILENT_SOURCE_S):
+        level, message = WARN, (f'torques zero: no wrench for {readings.wrench_age:.1f} s '
+                                f'from {readings.wrench_sources} matched publisher(s)')
     values.update(_passivity_values(readings))
     return level, message, values
 

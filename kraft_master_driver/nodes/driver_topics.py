@@ -136,6 +136,7 @@ class InputTopics:
         self.log = node.get_logger()
         self.slave_energy = (0.0, 0.0, 0.0)
         self.slave_link = LinkMonitor()
+        self.wrench_taken_ns = None  # monotonic time the newest wrench was taken, any verdict
         self._wrench_sub = self._subscribe_wrench(node, 'wrench')
         self._servo_cf_sub = None
         if config['crtk_names']:
@@ -165,10 +166,12 @@ class InputTopics:
         refused, sources_change = self.admission.count_sources(
             ros_io.publisher_count(self._wrench_sub, servo_cf))
         for data in ros_io.take_all(self._wrench_sub):
+            self.wrench_taken_ns = time.monotonic_ns()
             if not refused:
                 self._on_wrench(data)
         if servo_cf is not None:
             for data in ros_io.take_all(servo_cf):
+                self.wrench_taken_ns = time.monotonic_ns()
                 if not refused:
                     self._on_wrench(data, empty_is_base=True)
         if refused:

@@ -123,3 +123,18 @@ def test_the_diagnostics_import_no_rclpy():
     code = ('import sys, kraft_master_driver.nodes.driver_diagnostics; '
             'sys.exit("rclpy" in sys.modules)')
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
+
+
+def test_a_matched_wrench_publisher_that_sends_nothing_warns():
+    # A soak's driver took no wrench for 27 minutes, its diagnostics OK, while a recorder on
+    # the same domain took the same publisher's wrenches.
+    level, message, values = driver_diagnostics(readings(wrench_age=0.5, force_state='stale'))
+    assert (level, message, values['wrench age (s)']) == (OK, 'running', '0.500')
+    level, message, values = driver_diagnostics(readings(wrench_age=27.25, force_state='stale'))
+    assert level == WARN
+    assert message == 'torques zero: no wrench for 27.2 s from 1 matched publisher(s)'
+    assert values['wrench age (s)'] == '27.250'
+    # None matched, none yet, or force off: nothing to wait for.
+    assert driver_diagnostics(readings(wrench_age=27.25, wrench_sources=0))[0] == OK
+    assert driver_diagnostics(readings())[2]['wrench age (s)'] == 'none yet'
+    assert driver_diagnostics(readings(wrench_age=27.25, force=ForceReflection()))[0] == OK
