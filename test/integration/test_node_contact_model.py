@@ -18,6 +18,9 @@ pytestmark = pytest.mark.integration
 DEPTH = 0.005  # m: the hand this far inside the wall
 STIFFNESS = 500.0  # N/m: under the renderable wall's clip (740 N/m at 1 kHz)
 UP = (0.0, 0.0, 1.0)
+# The simulated hand yields (about 290 N/m along UP at home): the wall's force peaks near 1.35 N
+# as it ramps in, then settles near 0.9 N. Pressed is judged against the settled force.
+PRESSED_N = 0.25 * STIFFNESS * DEPTH
 
 
 @pytest.fixture
@@ -73,7 +76,7 @@ def felt_force(state):
 
 def pressed(session):
     state = session.client.joint_states[-1]
-    return any(state.effort) and felt_force(state)[0] > 0.5 * STIFFNESS * DEPTH
+    return any(state.effort) and felt_force(state)[0] > PRESSED_N
 
 
 def released(session):
@@ -87,7 +90,7 @@ def test_a_wall_over_the_hand_pushes_it_down_along_its_normal(session):
     stream_model_until(session, MODEL_FIELDS, wall_over_the_hand(session),
                        lambda: pressed(session))
     force, residual = felt_force(session.client.joint_states[-1])
-    assert 0.5 * STIFFNESS * DEPTH < force <= STIFFNESS * DEPTH * 1.01
+    assert PRESSED_N < force <= STIFFNESS * DEPTH * 1.01
     assert residual < 1e-3
 
 
