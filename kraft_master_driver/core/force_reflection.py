@@ -23,6 +23,7 @@ from typing import Any, NamedTuple, Protocol, TypeVar
 
 from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.force_ramp import ForceRamp, ShareSlew
+from kraft_master_driver.core.torque_limits import TorqueLimiter
 from kraft_master_driver.core.validation import (
     checked_changes, choice, finite_real, finite_reals, flag)
 from kraft_master_driver.core.wrench_admission import (
@@ -186,15 +187,12 @@ class ForceReflection:
         self._tripped: WrenchInput | None = None
         self._cleared = False  # clear() took the wrench away: nothing, not even the weight
         self._expired: WrenchInput | None = None
-        self._was_saturated = False
+        self._limiter = TorqueLimiter()
         self._ramp = ForceRamp()
         self._model_share = ShareSlew()
         self.rejections = dict.fromkeys(REJECTION_REASONS, 0)
         self._watchdog_trips = 0
         self._age_expiries = 0
-        self._saturation_events = 0
-        self._saturated_cycles = 0
-        self._non_finite_results = 0
         self.configure(
             enabled=enabled, force_scale=force_scale, torque_limits=torque_limits,
             coupling=coupling, wrench_timeout=wrench_timeout, centre_stiffness=centre_stiffness,
@@ -253,15 +251,15 @@ class ForceReflection:
         counters = {
             'watchdog_trips': self._watchdog_trips,
             'age_expiries': self._age_expiries,
-            'saturation_events': self._saturation_events,
-            'saturated_cycles': self._saturated_cycles,
-            'non_finite_results': self._non_finite_results,
+            'saturation_events': self._limiter.saturation_events,
+            'saturated_cycles': self._limiter.saturated_cycles,
+            'non_finite_results': self._limiter.non_finite_results,
         }
         counters.update({f'rejected_{key}': n for key, n in self.rejections.items()})
         return counters
 
     def _idle(self, state: str, port: Port | None = None, now_ns: int = 0) -> TorqueOutput:
-        self._was_saturated = False
+        self._limiter.reset()
         if port is not None:
             port.idle(now_ns)
         return _ZERO_OUTPUTS[state]
@@ -343,47 +341,21 @@ class ForceReflection:
     def _limited(self, torques: list[float], holding: Sequence[float] | None,
                  actuator_form: bool, state: str, tag: object, share: float,
                  port: Port | None, now_ns: int) -> TorqueOutput:
-        """
-        Add the holding torques, refuse non-finite ones, keep inside the torque limits, ramp.
-
-        The reflected torques are scaled down as one vector (keeping the force's direction) so
-        that, with the arm's weight added, no axis passes its limit; the weight itself is only
-        clamped, each axis on its own. The sum is scaled by the ramp's share.
-        """
-        limits = self._hot.settings.torque_limits
-        weight, clamped = (0.0,) * DRIVEN_AXES, False
-        if holding is not None:
-            h1, h2, h3, h4, h5 = holding
-            # Actuator axes; a device taking joint torques gets tau2 = tau_q2 + tau_q3.
-            wanted = (h1, h2 if actuator_form else h2 + h3, h3, h4, h5)
-            weight = tuple(min(max(h, -limit), limit) for h, limit in zip(wanted, limits))
-            clamped = weight != wanted
-        if not all(map(math.isfinite, (*torques, *weight))):
-            self._non_finite_results += 1
+        """Add the holding torques inside the torque limits (TorqueLimiter), then ramp."""
+        limited = self._limiter.limit(torques, holding, self._hot.settings.torque_limits,
+                                      actuator_form)
+        if limited is None:
             if port is not None:
                 port.scaled(0.0)  # nothing reflected after all
             self._ramp.restart()
             return self._idle(REJECTED, port, now_ns)
-        # The largest share of the reflected torques that each axis's headroom allows.
-        factor = min([1.0] + [(limit - math.copysign(w, tau)) / abs(tau)
-                              for tau, w, limit in zip(torques, weight, limits)
-                              if abs(tau + w) > limit])
-        saturated = factor < 1.0 or clamped
-        if saturated:
-            self._saturated_cycles += 1
-            if not self._was_saturated:
-                self._saturation_events += 1
-        self._was_saturated = saturated
         ramp = self._ramp.share
-        if port is not None and factor * ramp < 1.0:
-            port.scaled(factor * ramp)
-        # The clamp only trims rounding.
-        torques = [min(max(tau * factor + w, -limit), limit) * ramp
-                   for tau, w, limit in zip(torques, weight, limits)]
-        t1, t2, t3, t4, t5 = torques
+        if port is not None and limited.factor * ramp < 1.0:
+            port.scaled(limited.factor * ramp)
+        t1, t2, t3, t4, t5 = torques = [tau * ramp for tau in limited.torques]
         # kinematics.joint_torques_from_actuator, inlined; th6 has no motor.
         joint = (t1, t2 + t3, t3, t4, t5, 0.0) if actuator_form else (t1, t2, t3, t4, t5, 0.0)
-        return TorqueOutput(tuple(torques), joint, state, saturated, tag, share)
+        return TorqueOutput(tuple(torques), joint, state, limited.saturated, tag, share)
 
     def _direct(self, rotation: Matrix, now_ns: int, cartesian_velocity: Vector | None,
                 port: Port | None, share: float) -> tuple[str, list[float] | None]:
