@@ -83,8 +83,10 @@ def driver_diagnostics(readings):
         values['force state'] = 'several_sources'
     elif (force.enabled and readings.wrench_sources and readings.wrench_age is not None
           and readings.wrench_age > SILENT_SOURCE_S):
-        level, message = WARN, (f'torques zero: no wrench for {readings.wrench_age:.1f} s '
-                                f'from {readings.wrench_sources} matched publisher(s)')
+        # The force state says what is felt: zero (stale), or the contact model alone.
+        level, message = WARN, (f'no wrench for {readings.wrench_age:.1f} s from '
+                                f'{readings.wrench_sources} matched publisher(s); force state '
+                                f'{readings.force_state or "no_state"}')
     values.update(_passivity_values(readings))
     return level, message, values
 

@@ -132,7 +132,7 @@ def test_a_matched_wrench_publisher_that_sends_nothing_warns():
     assert (level, message, values['wrench age (s)']) == (OK, 'running', '0.500')
     level, message, values = driver_diagnostics(readings(wrench_age=27.25, force_state='stale'))
     assert level == WARN
-    assert message == 'torques zero: no wrench for 27.2 s from 1 matched publisher(s)'
+    assert message == 'no wrench for 27.2 s from 1 matched publisher(s); force state stale'
     assert values['wrench age (s)'] == '27.250'
     # None matched, none yet, or force off: nothing to wait for.
     assert driver_diagnostics(readings(wrench_age=27.25, wrench_sources=0))[0] == OK
