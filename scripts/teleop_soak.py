@@ -30,7 +30,7 @@ import time
 REPO = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(REPO), str(REPO / 'test')]
 
-from harness.soak_site import LINKS, MAX_WRENCH_AGE_S  # noqa: E402  (test/ on the path first)
+from harness.soak_site import DRIVER, LINKS, MAX_WRENCH_AGE_S  # noqa: E402  (test/ first)
 from harness.teleop_soak import Soak  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -48,7 +48,8 @@ def check(soak, bag):
     except ImportError as error:
         return None, {'not checked': f'no session checker in this checkout ({error})'}
     result = check_session(bag, faults=soak.faults, settings={
-        'passivity': True, 'max_wrench_age': MAX_WRENCH_AGE_S})
+        'passivity': True, 'max_wrench_age': MAX_WRENCH_AGE_S,
+        'contact_damping': DRIVER['contact_damping']})
     return result.violations, result.summary
 
 

@@ -39,7 +39,8 @@ DEFAULTS: dict[str, Any] = {
     Settings().max_angular_speed, 'max_step_s': MAX_STEP, 'hold_tolerance': 0.002,
     'state_grace': 0.05, 'torque_zero_within': 0.110,
     'max_wrench_age': 0.1, 'torque_zero': 1e-9,
-    'max_torque_step': 0.5, 'come_back_window': 0.2, 'frame_tolerance': 2,
+    'max_torque_step': 0.5, 'come_back_window': 0.2, 'wrench_timeout': 0.05,
+    'force_scale': 1.0, 'contact_damping': 0.0, 'frame_tolerance': 2,
     'energy_tolerance': 0.003, 'energy_grace': 0.01, 'frame_gap': 0.1, 'passivity': None}
 CHECKS = ('command steps', 'holds after a fault', 'torque zero after a fault',
           'torque steps as force comes back', 'pot frames all recorded', 'energy never generated')
@@ -113,6 +114,7 @@ class _Pair:
         self.twist_command = _series(get('servo_cv'), 'linear', 'angular')
         self.measured = _series(get('measured_cp'), 'position', 'orientation')
         self.effort = _series(get('joint_states'), 'effort')
+        self.joints = _series(get('joint_states'), 'position', 'velocity')
         self.wrench = _series(get('wrench'), 'force', 'torque')
         self.pots = get('pots')
         self.master_energy = _series(get('master_energy'), 'vector')
@@ -181,7 +183,8 @@ def _check_pair(pair: _Pair, faults: list[Fault], limits: Limits, passivity: Opt
             for period in pair.periods:
                 if period.state == 'FAULT' and period.start >= fault.start:
                     recoveries.setdefault(period.end, fault._replace(end=period.end))
-        ran(CHECKS[3], invariants.torque_steps(list(recoveries.values()), pair.effort, limits))
+        ran(CHECKS[3], invariants.torque_steps(list(recoveries.values()), pair.effort, limits,
+                                               pair.joints, pair.wrench))
     counts = [(log / 1e9, stamp, int(values['pot frames published']))
               for log, stamp, values in pair.driver if 'pot frames published' in values]
     if pair.pots is not None and len(pair.pots) and counts:

@@ -9,6 +9,7 @@ receive time of the message at fault, seconds of the bag's clock) and its topic.
 """
 from typing import Callable, NamedTuple, Optional
 
+from kraft_master_driver.core import kinematics
 from kraft_master_driver.core.passivity import PortEnergy
 import numpy as np
 
@@ -85,6 +86,9 @@ class Limits(NamedTuple):
     frame_tolerance: int  # pot frames a diagnostics count may differ from the bag at its stamp
     energy_tolerance: float  # J a port may hand out beyond its credit
     energy_grace: float  # s: credit received this much after a port's message still counts
+    wrench_timeout: float = 0.05  # s: the driver's; a longer gap in the wrenches made it stale
+    force_scale: float = 1.0  # the driver's, from wrench to reflected wrench
+    contact_damping: float = 0.0  # s/m: the driver's, damping per newton of the force reflected
 
 
 def _first(series: Series, rows: np.ndarray, text: Callable[[int], str]) -> list[Violation]:
@@ -284,7 +288,9 @@ def torque_zero(faults: list[Fault], effort: Series, limits: Limits,
     return found
 
 
-def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Violation]:
+def torque_steps(faults: list[Fault], effort: Series, limits: Limits,
+                 joints: Optional[Series] = None, wrench: Optional[Series] = None
+                 ) -> list[Violation]:
     """
     Check that the torque rises by at most max_torque_step a message as force comes back.
 
@@ -294,7 +300,9 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Vi
     a fault that makes the force untrue or one on the master's or the clock's side (the driver
     zeroes the torque for them); not after a stuck sensor, a loss burst or a delay step: the
     force that comes through them is the arm's, and a step in it is the arm's contact
-    changing, as at a touch.
+    changing, as at a touch. Nor a rise that a step of the live wrench explains
+    (_wrench_explains; joints: joint_states' positions and velocities, row for row with
+    effort).
     """
     found = []
     size = np.max(np.abs(effort.values), axis=1, initial=0.0)
@@ -309,12 +317,49 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits) -> list[Vi
         until = min([back + limits.come_back_window] + [
             other.start for other in faults if other is not fault and other.start >= fault.end])
         rows = np.flatnonzero((effort.t[1:] >= back) & (effort.t[1:] < until) &
-                              (rises > limits.max_torque_step))
-        found += _first(effort, rows + 1, lambda row: (
+                              (rises > limits.max_torque_step)) + 1
+        rows = np.array([row for row in rows.tolist() if not _wrench_explains(
+            row, float(rises[row - 1]), joints, wrench, limits)], dtype=int)
+        found += _first(effort, rows, lambda row: (
             f'torque rose {rises[row - 1]:.4f} N*m in one message as force came back after '
             f'{fault.kind} ({fault.side}) ended at {fault.end:.3f} s (bound '
             f'{limits.max_torque_step:g} N*m)'))
     return found
+
+
+def _wrench_explains(row: int, rise: float, joints: Optional[Series],
+                     wrench: Optional[Series], limits: Limits) -> bool:
+    """
+    Return whether a step of the live wrench gives the torque's rise at joints' `row`.
+
+    A touch or a spike steps the arm's wrench, and the torque with it: the arm's force
+    changing, not the force coming back. The driver and the recorder receive a wrench up to
+    state_grace apart, so any two wrenches received from state_grace before the previous
+    torque message to state_grace after this one may make the step, if no silence longer
+    than wrench_timeout came between them (it made the force stale: what followed it is the
+    force coming back, which a wrench from before it does not explain). The rise is
+    explained if at most force_scale (lever |dF| (1 + contact_damping v) + |dM|), with the
+    pose's longest lever (the largest |J| column's linear part, the same for either arm) and
+    the wrist's speed v.
+    """
+    if joints is None or wrench is None:
+        return False
+    first, last = np.searchsorted(wrench.t, [joints.t[row - 1] - limits.state_grace,
+                                             joints.t[row] + limits.state_grace])
+    silences = np.flatnonzero(np.diff(wrench.t[first:last]) > limits.wrench_timeout) + 1
+    force = moment = 0.0
+    for live in np.split(wrench.values[first:last], silences):
+        change = live[:, None, :] - live[None, :, :]
+        force = max([force, *np.linalg.norm(change[..., :3], axis=2).ravel()])
+        moment = max([moment, *np.linalg.norm(change[..., 3:], axis=2).ravel()])
+    position, velocity = joints.values[row, :6], joints.values[row, 6:]
+    jacobian = kinematics.jacobian(position)[:, :kinematics.DRIVEN_JOINTS]
+    speed = (float(np.linalg.norm(jacobian[:3] @ velocity[:kinematics.DRIVEN_JOINTS]))
+             if velocity.size == 6 else 0.0)
+    lever = float(np.linalg.norm(jacobian[:3], axis=0).max())
+    turn = float(np.linalg.norm(jacobian[3:], axis=0).max())
+    return rise <= limits.force_scale * (
+        lever * force * (1.0 + limits.contact_damping * speed) + turn * moment)
 
 
 def frames_lost(stamps: np.ndarray, counts: list[tuple[float, int, int]], topic: str,

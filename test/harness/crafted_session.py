@@ -12,7 +12,7 @@ every 0.5 s (passivity on, the pot frames counted), both ports' energies within 
 Every invariant holds; each name in BREAKS breaks exactly one of them.
 """
 from kraft_master_driver.bag.common import (
-    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, typestore, VECTOR3_STAMPED)
+    DIAGNOSTIC_ARRAY, JOINT_STATE, POSE_STAMPED, typestore, VECTOR3_STAMPED, WRENCH_STAMPED)
 from kraft_master_driver.bag.recorder import BagRecorder
 import numpy as np
 
@@ -58,6 +58,15 @@ def energy(t, values):
     x, y, z = (float(v) for v in values)
     return TYPES[VECTOR3_STAMPED](header=_header(t), vector=TYPES['geometry_msgs/msg/Vector3'](
         x=x, y=y, z=z))
+
+
+def wrench(t, force):
+    """Return a WrenchStamped of `force` (N, base frame), no moment."""
+    vector = TYPES['geometry_msgs/msg/Vector3']
+    x, y, z = (float(v) for v in force)
+    return TYPES[WRENCH_STAMPED](header=_header(t, 'kraft_master_base'), wrench=TYPES[
+        'geometry_msgs/msg/Wrench'](force=vector(x=x, y=y, z=z), torque=vector(
+            x=0.0, y=0.0, z=0.0)))
 
 
 def diagnostics(t, name, values):

@@ -6,7 +6,7 @@ import json
 
 from harness.crafted_session import (
     BREAKS, ENABLE_AT, energy, FAULT_AT, joints, JUMP_AT, LOST_AT, NS, pose, session_messages,
-    state, STRING, T0, TYPES, write_session)
+    state, STRING, T0, TYPES, wrench, write_session)
 from kraft_master_driver.bag.common import (
     JOINT_STATE, POSE_STAMPED, SessionError, TWIST_STAMPED, WRENCH_STAMPED)
 from kraft_master_driver.nodes.driver_parameters import PARAMETERS
@@ -221,14 +221,16 @@ def test_an_enable_received_after_the_first_torque_and_command_is_out_of_order_w
                for line in lines), lines
 
 
-def write_torque_step(path):
+def write_torque_step(path, wrenches=()):
     """Write the session with the torque stepping from 0.2 to 1 N*m; return when (s)."""
     step_at = T0 + 3.6
     messages = [(topic, kind, at, dataclasses.replace(message, effort=np.full(6, 1.0)))
                 if topic.endswith('joint_states') and at > step_at else
                 (topic, kind, at, message)
                 for topic, kind, at, message in session_messages()]
-    write_session(path, messages=messages)
+    write_session(path, messages=messages + [
+        (f'{NS}/wrench', WRENCH_STAMPED, step_at + at, wrench(step_at + at, (0.0, 0.0, force)))
+        for at, force in wrenches])
     return step_at
 
 
@@ -262,6 +264,26 @@ def test_a_torque_step_after_another_fault_began_is_not_the_force_coming_back(
              if 'torque rose' in line]
     assert bool(lines) == found, lines
     assert all('after arm restart' in line for line in lines), lines
+
+
+@pytest.mark.parametrize('before, after, silence, found', [
+    (1.0, 4.0, False, False), (1.0, 2.0, False, True), (1.0, 4.0, True, True)])
+def test_a_torque_step_that_a_step_of_the_live_wrench_explains_is_the_arms_force(
+        tmp_path, before, after, silence, found):
+    # The torque rises 0.8 N*m 0.01 s after a master's fault. At the crafted pose (all joints
+    # at zero) the longest lever is 0.40 m: a live wrench stepping 3 N explains it (a touch),
+    # 1 N does not, nor a step across a silence longer than wrench_timeout (the force coming
+    # back after being stale, which the driver must ramp).
+    # Every 5 ms, stepping 3 ms after step_at; the silence, 55 ms, ends with the step.
+    times = np.arange(-0.5, 0.3, 0.005) + 0.003
+    if silence:
+        times = times[(times < -0.05) | (times > 0.0)]
+    wrenches = [(at, before if at < 0.0 else after) for at in times]
+    step_at = write_torque_step(tmp_path / 'bag', wrenches)
+    fault = {'kind': 'a fault', 'side': 'master', 'start': step_at - 0.5, 'end': step_at - 0.01}
+    lines = [line for line in check_session(tmp_path / 'bag', faults=[fault]).violations
+             if 'torque rose' in line]
+    assert bool(lines) == found, lines
 
 
 def test_bad_faults_are_refused_naming_the_fault_or_the_line(tmp_path):
