@@ -302,11 +302,13 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits,
     force that comes through them is the arm's, and a step in it is the arm's contact
     changing, as at a touch. Nor a rise that a step of the live wrench explains
     (_wrench_explains; joints: joint_states' positions and velocities, row for row with
-    effort).
+    effort). Two messages the driver counted n apart (the recorder lost those between) may
+    be n steps apart.
     """
     found = []
     size = np.max(np.abs(effort.values), axis=1, initial=0.0)
     rises = np.diff(size)
+    apart = _messages_apart(effort)
     for fault in faults:
         if not (fault.force_untrue or fault.side in ('master', 'clock')):
             continue
@@ -317,13 +319,14 @@ def torque_steps(faults: list[Fault], effort: Series, limits: Limits,
         until = min([back + limits.come_back_window] + [
             other.start for other in faults if other is not fault and other.start >= fault.end])
         rows = np.flatnonzero((effort.t[1:] >= back) & (effort.t[1:] < until) &
-                              (rises > limits.max_torque_step)) + 1
+                              (rises > limits.max_torque_step * apart)) + 1
         rows = np.array([row for row in rows.tolist() if not _wrench_explains(
             row, float(rises[row - 1]), joints, wrench, limits)], dtype=int)
         found += _first(effort, rows, lambda row: (
             f'torque rose {rises[row - 1]:.4f} N*m in one message as force came back after '
             f'{fault.kind} ({fault.side}) ended at {fault.end:.3f} s (bound '
-            f'{limits.max_torque_step:g} N*m)'))
+            f'{limits.max_torque_step:g} N*m a message'
+            f'{"" if apart[row - 1] == 1 else f", {apart[row - 1]:g} messages apart"})'))
     return found
 
 

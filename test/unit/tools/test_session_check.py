@@ -13,7 +13,7 @@ from kraft_master_driver.nodes.driver_parameters import PARAMETERS
 from kraft_master_driver.tools import report
 from kraft_master_driver.tools.session_check import check_session, DEFAULTS, read_faults
 from kraft_master_driver.tools.session_invariants import (
-    command_steps, frames_lost, Limits, Series)
+    command_steps, Fault, frames_lost, Limits, Series, torque_steps)
 import numpy as np
 import pytest
 
@@ -351,6 +351,16 @@ def test_a_step_across_commands_the_recorder_lost_may_be_as_many_steps():
     assert [v.time for v in command_steps(series, None, LIMITS)] == [1.0, 4.0, 5.0]
     unknown = Series('/servo_cp', np.arange(6.0), values)
     assert [v.time for v in command_steps(unknown, None, LIMITS)] == [1.0, 2.0, 3.0, 4.0, 5.0]
+
+
+@pytest.mark.parametrize('sequence, found', [((1, 3), False), ((1, 2), True), ((0, 3), True)])
+def test_a_torque_rise_across_messages_the_recorder_lost_may_be_as_many_steps(sequence, found):
+    # After a master's fault the torque rises 0.8 N*m (the bound is 0.5 a message) between
+    # messages the driver counted 2 apart (one lost between), 1 apart, and not known.
+    effort = Series('/joint_states', np.array([1.0, 1.002]),
+                    np.column_stack([[0.1, 0.9], np.zeros((2, 5))]), None, np.array(sequence))
+    fault = Fault('a fault', 'master', 0.5, 0.9, False)
+    assert bool(torque_steps([fault], effort, LIMITS)) == found
 
 
 def test_a_restarted_driver_counts_anew_without_a_frame_lost():
