@@ -410,7 +410,11 @@ class Operator:
         assert client.wait_for_services(timeout_sec=START_S), f'no parameter service on {node}'
         future = client.set_parameters([Parameter(name.replace('__', '.'), value=value)
                                         for name, value in values.items()])
-        wait_for(future.done, START_S)
+        try:
+            wait_for(future.done, START_S)
+        except AssertionError:
+            raise AssertionError(f'{node} did not answer set_parameters {values} within '
+                                 f'{START_S:g} s') from None
         results = future.result().results
         assert all(r.successful for r in results), [r.reason for r in results]
         return time.time()

@@ -135,7 +135,12 @@ class Soak:
                 if self.site.dead():
                     self.notes.append(f'{", ".join(self.site.dead())} ended by itself')
                     break
-                self.inject(fault)
+                try:
+                    self.inject(fault)
+                except AssertionError as error:  # a request no process of the site answered
+                    self.notes.append(f'{fault.kind.name} at {time.monotonic() - self.started:.0f}'
+                                      f' s: {error}; the soak stopped there')
+                    return time.monotonic() - self.started
             self.run_for(self.started + self.duration - time.monotonic(), operating=True)
             return time.monotonic() - self.started
         finally:
