@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 
 from geometry_msgs.msg import PoseStamped
 from harness import certificates, dds_shm, REPO
@@ -363,6 +364,7 @@ class Operator:
         self._master_z = None
         self._stopping = threading.Event()
         self._lock = threading.Lock()
+        self.spin_error = None  # what stopped the spinning thread, if anything did
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -373,10 +375,14 @@ class Operator:
         self.arm_stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
     def _spin(self):
-        while not self._stopping.is_set():
-            with self._lock:
-                for client in (self.arm_node, self.master_node):
-                    client.executor.spin_once(timeout_sec=0.005)
+        try:
+            while not self._stopping.is_set():
+                with self._lock:
+                    for client in (self.arm_node, self.master_node):
+                        client.executor.spin_once(timeout_sec=0.005)
+        except Exception as error:  # noqa: B902 - a deaf operator is told, not left silent
+            self.spin_error = repr(error)
+            traceback.print_exc()
 
     def at_top_of_stroke(self):
         """Return whether the master's wrist is at home's height, where the task's moves are."""

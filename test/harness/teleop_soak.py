@@ -139,7 +139,8 @@ class Soak:
                     self.inject(fault)
                 except AssertionError as error:  # a request no process of the site answered
                     self.notes.append(f'{fault.kind.name} at {time.monotonic() - self.started:.0f}'
-                                      f' s: {error}; the soak stopped there')
+                                      f' s: {error}; the soak stopped there (operator spinning: '
+                                      f'{self.operator.spin_error or "yes"})')
                     return time.monotonic() - self.started
             self.run_for(self.started + self.duration - time.monotonic(), operating=True)
             return time.monotonic() - self.started
@@ -158,7 +159,8 @@ class Soak:
         entry['following_again_s'] = None if took is None else round(took, 2)
         if took is None:
             self.notes.append(f'{fault.kind.name} at {start:.3f}: the bridge did not follow '
-                              f'again within {RECOVERY_S:g} s ({self.operator.state!r})')
+                              f'again within {RECOVERY_S:g} s ({self.operator.state!r}; '
+                              f'operator spinning: {self.operator.spin_error or "yes"})')
         self.faults.append(entry)
         print(f'{time.strftime("%H:%M:%S")} {fault.kind.name}: {end - start:.3f} s, following '
               f'again after {entry["following_again_s"]} s', flush=True)

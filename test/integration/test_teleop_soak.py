@@ -8,10 +8,12 @@ Once with each link between the sites: the link emulator, and a Zenoh link on ea
 import json
 import subprocess
 import sys
+import types
 
 from harness import REPO
+from harness.driver import next_domain_id, wait_for
 from harness.soak_faults import kinds
-from harness.soak_site import LINKS
+from harness.soak_site import LINKS, Operator
 import pytest
 
 pytestmark = [pytest.mark.integration, pytest.mark.faults]
@@ -87,3 +89,19 @@ def test_every_process_stopped_at_sigint_and_nothing_is_left_behind(soak):
     _, output, summary = soak
     assert set(summary['exit_codes'].values()) == {0}, output
     assert summary['leftovers'] == [], output
+
+
+def test_an_operator_whose_spinning_fails_says_why_instead_of_going_deaf():
+    # A busy soak's operator stopped hearing the site while the recorder heard everything: a
+    # failure of its spinning thread must be told, not leave it silently deaf.
+    site = types.SimpleNamespace(master_domain=next_domain_id(), arm_domain=next_domain_id(),
+                                 link='zenoh')
+    operator = Operator(site)
+    try:
+        def fail():
+            raise RuntimeError('a callback failed')
+        operator.arm_node.node.create_timer(0.01, fail)
+        wait_for(lambda: operator.spin_error)
+        assert operator.spin_error == "RuntimeError('a callback failed')"
+    finally:
+        operator.close()
