@@ -6,6 +6,7 @@ import itertools
 import os
 import pathlib
 import random
+import select
 import signal
 import subprocess
 import sys
@@ -189,12 +190,27 @@ class DriverProcess:
         self.process = subprocess.Popen(
             command, env=installed_env(prefix, domain_id), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
+        self.read = ''  # the output read_until() took
+
+    def read_until(self, text, timeout=WAIT_S):
+        """Read the output until it holds `text`; the exit's output keeps what was read."""
+        fd = self.process.stdout.fileno()  # read raw: the pipe's text reader stays empty
+        deadline = time.monotonic() + timeout
+        taken = self.read.encode()
+        while text not in self.read:
+            remaining = deadline - time.monotonic()
+            assert remaining > 0 and select.select([fd], [], [], remaining)[0], \
+                f'no {text!r} within {timeout} s: {self.read[-2000:]}'
+            chunk = os.read(fd, 65536)
+            assert chunk, f'the output ended without {text!r}: {self.read[-2000:]}'
+            taken += chunk
+            self.read = taken.decode(errors='replace')
 
     def interrupt(self, sig=signal.SIGINT, timeout=WAIT_S):
         """Send `sig`, wait for the exit; return (exit code, output)."""
         self.process.send_signal(sig)
         output, _ = self.process.communicate(timeout=timeout)
-        return self.process.returncode, output
+        return self.process.returncode, self.read + output
 
     def wait_exit(self, timeout=WAIT_S):
         """Wait for the process to end by itself; return (exit code, output)."""

@@ -314,6 +314,10 @@ def test_a_teardown_stuck_in_c_is_ended_by_the_guard_after_zero_torque(install_p
                                    wrapper=(sys.executable, '-c', HANGING_TEARDOWN))
     try:
         running.command_torque()
+        # The loop sends torque before the node is made: a signal before the start line ends
+        # the start-up (exit 0, zero torque), and no teardown runs to hang (1 run in 5 beside
+        # a busy loop per core).
+        running.driver.read_until('Kraft Master on')
         groups = dds_shm.held_by(running.driver.process.pid)
         started = time.monotonic()
         code, output = running.driver.interrupt(signal.SIGINT)
