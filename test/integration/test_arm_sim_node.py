@@ -105,7 +105,13 @@ class Master:
             return (len(recent) == 20 and np.ptp(recent, axis=0).max() < spread
                     and (near is None or bool(np.all(np.abs(recent - near) < within))))
         self.measured_cp.clear()
-        self.run_until(still)
+        try:
+            self.run_until(still)
+        except AssertionError as error:
+            last = [np.round(position(m), 4).tolist() for m in list(self.measured_cp)[-3:]]
+            raise AssertionError(f'{error}; the arm was last at {last}, the master at '
+                                 f'{np.round(self.master, 4).tolist()}, the bridge in '
+                                 f'{list(self.states)[-3:]}') from None
         return position(self.measured_cp[-1])
 
     def enable(self):

@@ -182,8 +182,8 @@ def assert_the_arm_holds_while_the_master_moves(arm, simulator, commands, disabl
     assert all(state.startswith('DISABLED') for after, state in states if after), states
 
 
-def enable_bridge(arm, arm_link, timeout=180.0):
-    """Call the bridge's enable until it says yes; failing, assert with what was said."""
+def enable_bridge(arm, arm_link, master_link, timeout=180.0):
+    """Call the bridge's enable until it says yes; failing, assert with what the links said."""
     answers = []
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -192,8 +192,8 @@ def enable_bridge(arm, arm_link, timeout=180.0):
         if 'success=True' in result.stdout:
             return
         answers.append((result.stdout + result.stderr).strip().splitlines()[-1:])
-    raise AssertionError(f'enable refused for {timeout:g} s: {answers[-5:]}; the arm link '
-                         f'said {arm_link.lines[-10:]}')
+    raise AssertionError(f'enable refused for {timeout:g} s: {answers[-5:]}; the arm link said '
+                         f'{arm_link.lines[-10:]}; the master link said {master_link.lines[-10:]}')
 
 
 def between(records, start, end):
@@ -219,12 +219,12 @@ def test_contact_crosses_and_a_lost_link_zeroes_torque_holds_the_arm_until_enabl
     # The master moves 10 mm down while the link is down, and again once it is back.
     glide(simulator, actuator_target(0.0), actuator_target(0.01), 0.5)
     restore = time.monotonic()
-    start_master_link(master, sites)
+    master_link = start_master_link(master, sites)
     wait_for(lambda: arm_link.saw('authenticated peer master connected', lines))
     glide(simulator, actuator_target(0.01), actuator_target(0.02), 0.5)
     enable = time.monotonic()
     # The operator enables the bridge, again until the poses that crossed are fresh there.
-    enable_bridge(arm, arm_link)
+    enable_bridge(arm, arm_link, master_link)
     enabled_at = time.monotonic()
     # Following again: the master goes back up 10 mm, the arm with it.
     glide(simulator, actuator_target(0.02), actuator_target(0.01), 0.5)
