@@ -237,7 +237,7 @@ class ForceReflection:
             self.rejections[admitted.reason] += 1
 
     def clear(self) -> None:
-        """Forget the wrench: torques are zero (state 'no_wrench') until the next hold()."""
+        """Forget the wrench: torques are zero, the contact model's too, until the next hold()."""
         self._latest = None
         self._cleared = True
 
@@ -285,7 +285,8 @@ class ForceReflection:
         model: the contact model's force (N, 3, base frame; core/contact_rendering.py) and its
         share of the force (0..1, core/force_mode.py): the wrench is the direct one times
         (1 - share) plus force_scale times the model's times share, then the centre terms; with
-        no direct wrench to give (none yet, stale, refused) the model's alone. The share used
+        no direct wrench to give (none yet, stale, refused) the model's alone; after clear(),
+        nothing, the model's neither, until the next hold(). The share used
         moves to its goal, and back, over force_ramp_time (ShareSlew): no step at the hand.
         holding: the motor torques (N*m, actuator axes 1..5) that hold the arm up against its
         weight (core/gravity.py): added to a wrench being reflected, or alone before any
@@ -299,6 +300,11 @@ class ForceReflection:
         if not settings.enabled:
             self._ramp.restart()
             return self._idle(DISABLED, port, now_ns)
+        if self._cleared:
+            # Several wrench sources (or force disabled): nothing is felt, not even the contact
+            # model's wall, and what comes after ramps in.
+            self._ramp.restart()
+            return self._idle(NO_WRENCH, port, now_ns)
         goal = 0.0 if model is None else model[1]
         state, wrench = self._direct(rotation, now_ns, cartesian_velocity, port, goal)
         if wrench is None and model is not None and any(model[0]):
@@ -314,9 +320,9 @@ class ForceReflection:
             state = ACTIVE
         actuator_form = settings.coupling == 'actuator'
         if wrench is None:
-            # The arm's weight alone only before any wrench: stale, refused or several sources
-            # refused (cleared) give zero, the weight included.
-            if holding is None or state != NO_WRENCH or self._cleared:
+            # The arm's weight alone only before any wrench: stale or refused give zero, the
+            # weight included.
+            if holding is None or state != NO_WRENCH:
                 self._ramp.restart()
                 return _ZERO_OUTPUTS[state]
             # The port has nothing of this to book (the wrench's path idled it).

@@ -212,6 +212,32 @@ def test_the_force_blends_direct_and_model_and_takes_the_model_alone_without_a_w
     assert nothing.state != ACTIVE and not any(nothing.actuator)
 
 
+def test_several_wrench_sources_zero_the_models_force_too_and_it_ramps_in_after():
+    # The driver clears the force each cycle while more than one publisher is matched on the
+    # wrench topics: every wrench is refused, and "torques zero" must hold in model mode too.
+    from kraft_master_driver.core.force_reflection import ACTIVE, ForceReflection, NO_WRENCH
+    from kraft_master_driver.core.wrench_admission import BASE_FRAME, WrenchInput
+    reflection = ForceReflection(enabled=True, force_ramp_time=0.05)
+    rotation = np.eye(3).tolist()
+    jacobian = np.eye(6).tolist()
+    ms = 1_000_000
+    wall = ((0.0, 0.0, 1.5), 1.0)
+
+    def cycles(first, last):
+        for cycle in range(first, last):
+            reflection.hold(WrenchInput((0.0,) * 6, BASE_FRAME, cycle * ms))
+            yield reflection.compute(rotation, jacobian, cycle * ms, model=wall)
+    felt = list(cycles(0, 80))[-1]
+    assert felt.state == ACTIVE and felt.joint[2] == pytest.approx(1.5)
+    reflection.clear()
+    cleared = reflection.compute(rotation, jacobian, 80 * ms, model=wall)
+    assert cleared.state == NO_WRENCH and not any(cleared.actuator)
+    # One source again: its wrench comes, and the model's wall with it, over the ramp.
+    after = [output.joint[2] for output in cycles(81, 160)]
+    assert after[0] < 0.1 and after[-1] == pytest.approx(1.5)
+    assert max(np.diff(after)) <= 1.5 * 0.001 / 0.05 + 1e-9
+
+
 def test_the_models_force_comes_in_and_goes_out_over_the_ramp_as_the_wrench_stops_and_comes():
     # Direct mode (share 0): the arm's sensor feels nothing and the model holds a wall at 1.5 N.
     # A gap in the wrenches must not step the model's force in at once, nor a wrench coming
