@@ -14,7 +14,9 @@ The first of these ends the spin; those that follow are ignored, so that a secon
 cut short the node's own stop (the driver's zero-torque command, the closing of its port and of
 its simulator). A stop signal that came while the console script was still importing the node
 (nodes.commands) ends it before it starts anything. A shutdown stuck for SHUTDOWN_LIMIT_S, in
-C or in Python, ends with every thread's stack on stderr and exit 1.
+C or in Python, ends with every thread's stack on stderr and exit 1. SIGUSR1 prints every
+thread's stack to stderr and changes nothing else: `kill -USR1 <pid>` shows where a node that
+seems stuck or deaf is (faulthandler, no interpreter lock needed).
 """
 import contextlib
 import faulthandler
@@ -89,6 +91,7 @@ def run_node(make_node, program, summary, table, args=None):
         return 0
     stop_request = StopRequest()
     stop_with_parent()
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     node = None
     exit_code = 0
     try:

@@ -207,6 +207,23 @@ def test_the_builtin_simulator_is_removed_however_the_driver_stops(install_prefi
         driver.kill()
 
 
+def test_sigusr1_prints_every_threads_stack_and_the_driver_runs_on(install_prefix):
+    driver = DriverProcess(install_prefix, next_domain_id(), [('port', 'sim')])
+    try:
+        driver.read_until('Kraft Master on')
+        driver.process.send_signal(signal.SIGUSR1)
+        # Every thread's stack: the main thread's spin in rclpy, the loop thread, at least.
+        driver.read_until('(most recent call first)')
+        driver.read_until('rclpy')
+        # It runs on: a stop ends it as ever.
+        code, output = driver.interrupt(signal.SIGINT)
+        assert code == 0, output
+        assert output.count('(most recent call first)') >= 2, output
+        assert 'Traceback' not in output, output
+    finally:
+        driver.kill()
+
+
 @pytest.mark.parametrize('ending', ENDINGS)
 def test_a_stop_signal_while_the_driver_starts_ends_it_with_exit_0(install_prefix, ending):
     # As soon as the console script takes the signals, before it has imported the node (rclpy

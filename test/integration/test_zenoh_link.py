@@ -8,6 +8,7 @@ host (LOCALHOST, a domain each), and only Zenoh crosses the veth: kraft_master_z
 each host, the arm's listening, the master's connecting, certificates made by openssl for the
 test (harness/certificates.py) in a temporary directory. Intruders are harness/zenoh_peer.py.
 """
+import contextlib
 import json
 import pathlib
 import signal
@@ -192,8 +193,17 @@ def enable_bridge(arm, arm_link, master_link, timeout=180.0):
         if 'success=True' in result.stdout:
             return
         answers.append((result.stdout + result.stderr).strip().splitlines()[-1:])
+    # Where the master link's threads are (SIGUSR1: every stack), and all it said but counts:
+    # in CI once, it sent no pose for 100 s and more while it relayed wrenches to the driver.
+    lines = len(master_link.lines)
+    if master_link.process.poll() is None:
+        master_link.process.send_signal(signal.SIGUSR1)
+        with contextlib.suppress(AssertionError):  # the main thread's stack, in rclpy's spin
+            wait_for(lambda: master_link.saw('rclpy', lines), timeout=10.0)
+    said = [line for line in master_link.lines if '] sent ' not in line]
     raise AssertionError(f'enable refused for {timeout:g} s: {answers[-5:]}; the arm link said '
-                         f'{arm_link.lines[-10:]}; the master link said {master_link.lines[-10:]}')
+                         f"{arm_link.lines[-10:]}; the master link's last line: "
+                         f'{master_link.lines[lines - 1:lines]}, and all else it said: {said}')
 
 
 def between(records, start, end):
