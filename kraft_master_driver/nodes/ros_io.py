@@ -15,7 +15,8 @@ one file:
   received them where asked; publisher_count();
 - InputWaitSet: a wait on a given set of subscriptions alone, with a timeout;
 - run_paced() and PacedThread: cycles on core.pacing.Pacer's grid, with its rule for a late
-  cycle (run at once, skip the whole periods missed, never a burst);
+  cycle (run at once, skip the whole periods missed, never a burst); forward_inputs(): a
+  thread's work done at each arrival on an InputWaitSet;
 - RepeatedRequest: a service request asked again while its answer does not come;
 - steady_timer(), GIL_SWITCH_INTERVAL_S, and RCLError.
 
@@ -282,6 +283,23 @@ def run_paced(period_s: float, cycle: Callable[[int], object],
                 cycle(0 if missed is None else missed)
                 missed = pacer.advance()
     except Exception:  # noqa: B902 - see the docstring
+        if keep_running():
+            raise
+
+
+def forward_inputs(inputs: InputWaitSet, on_input: Callable[[], object],
+                   keep_running: Callable[[], bool]) -> None:
+    """
+    Call on_input() at each wake-up of a wait on `inputs` until keep_running() is false.
+
+    A wait lasts at most INPUT_WAIT_S. An exception ends the loop as in run_paced().
+    """
+    try:
+        with inputs:
+            while keep_running():
+                inputs.wait(INPUT_WAIT_S)
+                on_input()
+    except Exception:  # noqa: B902 - see run_paced's docstring
         if keep_running():
             raise
 

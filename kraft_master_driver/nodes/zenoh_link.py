@@ -42,8 +42,8 @@ from kraft_master_driver.nodes.link_emulator import DelayedSender, message_class
 from kraft_master_driver.nodes.node_process import run_node
 from kraft_master_driver.nodes.parameters import declare_parameters, ParameterError, Spec
 from kraft_master_driver.nodes.ros_io import (
-    GIL_SWITCH_INTERVAL_S, InputWaitSet, RepeatedRequest, run_paced, steady_timer, subscribe_raw,
-    take_newest)
+    forward_inputs, GIL_SWITCH_INTERVAL_S, InputWaitSet, PacedThread, RepeatedRequest,
+    steady_timer, subscribe_raw, take_newest)
 import rclpy.logging
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -147,11 +147,15 @@ class ZenohLinkNode(Node):
         self.peers = 0
         self.alone_since = time.monotonic()
         self._running = True
-        # Between the DDS messages it sends, the thread checks on the peer once a second.
-        self.sender = threading.Thread(target=run_paced, name='zenoh_link_send', args=(
-            PEER_CHECK_S, self._check_peers, lambda: self._running and self.context.ok(),
-            InputWaitSet(self.context, [s for _, s, _ in self.outputs]), self._send_newest))
+        # One thread sends the DDS messages as they come; another asks Zenoh for the peers
+        # once a second, so that the streams never wait on that call.
+        self.sender = threading.Thread(target=forward_inputs, name='zenoh_link_send', args=(
+            InputWaitSet(self.context, [s for _, s, _ in self.outputs]), self._send_newest,
+            lambda: self._running and self.context.ok()))
         self.sender.start()
+        self.peer_checks = PacedThread(self, 'zenoh_link_peers', PEER_CHECK_S,
+                                       self._check_peers)
+        self.peer_checks.start()
         steady_timer(self, LOG_PERIOD_S, self._log_counts)
         self.get_logger().info(
             f'{side} side of pair {pair}, {self.role} {self.endpoint} (TLS, peer '
@@ -240,6 +244,7 @@ class ZenohLinkNode(Node):
     def destroy_node(self):
         """Stop sending, close the session, then stop the releases; log the counts."""
         self._running = False
+        self.peer_checks.stop()
         self.sender.join()
         self.session.close()
         self.releaser.stop()
