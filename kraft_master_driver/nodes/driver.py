@@ -300,6 +300,8 @@ class KraftMasterNode(Node):
                     f'{kind} +{count}' for kind, count in grown.items() if count))
 
     def _publish_diagnostics(self):
+        # Stamped when the counters are read: a busy executor may take a while to publish.
+        stamp = self.get_clock().now().to_msg()
         device_stats = self.device.stats
         self._warn_link_errors(device_stats)
         admission, output = self.inputs.admission, self.loop.output
@@ -322,7 +324,7 @@ class KraftMasterNode(Node):
             level=DIAGNOSTIC_LEVELS[level], message=message,
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
+        array.header.stamp = stamp
         self.topics.diagnostics.publish(array)
 
     # -- shutdown ------------------------------------------------------------------------
