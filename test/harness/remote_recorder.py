@@ -9,12 +9,14 @@ Prints 'ready' once subscribed and 'first TOPIC' when a topic's first message co
 or SIGTERM prints one JSON line, {topic: [[monotonic receipt time, values...], ...]}
 (diagnostics: [time, {key: value}]; joint_states: the efforts).
 """
+import faulthandler
 import json
 import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, Vector3Stamped, WrenchStamped
+from kraft_master_driver.nodes.node_process import SHUTDOWN_LIMIT_S
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -73,6 +75,9 @@ def main(topics):
     records = {topic: [[t, *TOPICS[topic][1](deserialize_message(data, TOPICS[topic][0]))]
                        for t, data in kept] for topic, kept in raw.items()}
     print(json.dumps(records), flush=True)
+    # The nodes' own guard: a teardown stuck in Fast DDS ends the process, its stacks on stderr
+    # (in a fresh clone's run one did not end within 60 s of SIGINT, where it was not known).
+    faulthandler.dump_traceback_later(SHUTDOWN_LIMIT_S, exit=True)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0

@@ -129,7 +129,12 @@ class Recorder:
     def records(self):
         """Stop the recorder; return {topic: [[receipt time, values...], ...]}."""
         self.process.send_signal(signal.SIGINT)
-        self.process.wait(timeout=60)
+        try:
+            self.process.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            printed = 'its records' if hasattr(self, 'output') else 'nothing'
+            raise AssertionError(f'the recorder of {", ".join(self.topics)} did not end within '
+                                 f'60 s of SIGINT, having printed {printed}') from None
         deadline = time.monotonic() + 10.0
         while not hasattr(self, 'output') and time.monotonic() < deadline:
             time.sleep(0.01)
